@@ -1,0 +1,1 @@
+"""trivla_drake.systems"""
