@@ -1,0 +1,55 @@
+"""RGB cameras from Drake CameraConfigs, rendered headless by RenderEngineVtk and sampled at fps."""
+
+from __future__ import annotations
+
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams, SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ScopedName
+from pydrake.systems.framework import DiagramBuilder, OutputPort
+from pydrake.systems.primitives import ZeroOrderHold
+from pydrake.systems.sensors import CameraConfig, ImageRgba8U, RgbdSensor
+
+
+def _frame_named(plant: MultibodyPlant, name: str | None, camera: str):
+    if not name or name == "world":
+        return plant.world_frame()
+    scoped = ScopedName.Parse(name)
+    if not plant.HasModelInstanceNamed(scoped.get_namespace()):
+        raise ValueError(f"cameras.{camera}.X_PB.base_frame: no model instance '{scoped.get_namespace()}'")
+    instance = plant.GetModelInstanceByName(scoped.get_namespace())
+    if not plant.HasFrameNamed(scoped.get_element(), instance):
+        raise ValueError(f"cameras.{camera}.X_PB.base_frame: no frame '{name}'")
+    return plant.GetFrameByName(scoped.get_element(), instance)
+
+
+def add_rgb_camera(
+    builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, name: str, config: CameraConfig
+) -> OutputPort:
+    """Add one camera; returns its ImageRgba8U output, refreshed every 1/fps seconds of sim time."""
+    if config.fps <= 0:
+        raise ValueError(f"cameras.{name}.fps must be positive, got {config.fps}")
+    renderer = config.renderer_name
+    if not scene_graph.HasRenderer(renderer):
+        scene_graph.AddRenderer(renderer, MakeRenderEngineVtk(RenderEngineVtkParams()))
+    color_camera, depth_camera = config.MakeCameras()
+    frame = _frame_named(plant, config.X_PB.base_frame, name)
+    # X_PB is given in the named frame; RgbdSensor wants the pose in that frame's body.
+    X_BodyB = frame.GetFixedPoseInBodyFrame() @ config.X_PB.GetDeterministicValue()
+    sensor = builder.AddNamedSystem(
+        f"{name}_sensor",
+        RgbdSensor(
+            parent_id=plant.GetBodyFrameIdOrThrow(frame.body().index()),
+            X_PB=X_BodyB,
+            color_camera=color_camera,
+            depth_camera=depth_camera,
+        ),
+    )
+    builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
+    # Only colour is ever evaluated, so depth is never rendered.
+    hold = builder.AddNamedSystem(
+        f"{name}_sample_and_hold",
+        ZeroOrderHold(1.0 / config.fps, AbstractValue.Make(ImageRgba8U(config.width, config.height))),
+    )
+    builder.Connect(sensor.color_image_output_port(), hold.get_input_port())
+    return hold.get_output_port()
