@@ -28,7 +28,10 @@ from trivla_drake.robot.panda_description import (
 )
 
 # Bump when the conversion's output changes, so old caches are not reused.
-CONVERTER_VERSION = 4
+CONVERTER_VERSION = 6
+# Visual parts are decimated to at most this many triangles each: the cameras render 224 px
+# images, where the CAD meshes' detail is invisible but costs render time.
+MAX_VISUAL_FACES = 2000
 PACKAGE_NAME = "trivla_panda"
 _COMPLETE_MARKER = "conversion_complete"
 
@@ -128,6 +131,10 @@ def _convert_into(out_dir: Path) -> None:
             if source.name not in converted:
                 parts = []
                 for i, (rgba, mesh) in enumerate(_visual_parts_by_colour(source)):
+                    if len(mesh.faces) > MAX_VISUAL_FACES:
+                        # Decimation needs shared vertices; the CAD export repeats them per face.
+                        mesh.merge_vertices()
+                        mesh = mesh.simplify_quadric_decimation(face_count=MAX_VISUAL_FACES)
                     name = f"meshes/{source.stem}_visual_{i}.obj"
                     _export_obj(mesh, out_dir / name)
                     parts.append((name, rgba))

@@ -1,0 +1,463 @@
+"""TriVLA configuration: dataclasses whose defaults are the paper's shapes, and the named presets.
+
+`make_config("paper")` is the paper's model (Eagle-2 = SigLIP + SmolLM2-1.7B read out at layer 12,
+SVD 1.5B, a GR00T-sized DiT); `"cpu"` is the project's default (trainable and fast enough for
+closed-loop control on 2 CPU cores); `"tiny"` builds in well under a second for tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+PANDA_STATE_NAMES: tuple[str, ...] = tuple(
+    [f"panda_joint{i}_position" for i in range(1, 8)]
+    + ["panda_finger_joint1_position", "panda_finger_joint2_position"]
+    + [f"panda_joint{i}_velocity" for i in range(1, 8)]
+    + ["panda_finger_joint1_velocity", "panda_finger_joint2_velocity"]
+)
+"""The default 18-D state: 7 arm + 2 finger positions, then 7 + 2 velocities."""
+
+EE_DELTA_ACTION_NAMES: tuple[str, ...] = ("dx", "dy", "dz", "drx", "dry", "drz", "gripper")
+"""The default 7-D action: relative end-effector pose change, then a gripper command."""
+
+
+@dataclass
+class VisionEncoderConfig:
+    """SigLIP vision tower shape (transformers `SiglipVisionConfig` fields); defaults: Eagle-2's SigLIP."""
+
+    image_size: int = 224  # input frames are image_size x image_size RGB
+    patch_size: int = 14  # 224 / 14 = 16 x 16 patches
+    hidden_size: int = 1152
+    intermediate_size: int = 4304
+    num_hidden_layers: int = 27
+    num_attention_heads: int = 16
+    layer_norm_eps: float = 1e-6
+
+
+@dataclass
+class LanguageModelConfig:
+    """Llama-family LLM shape (transformers `LlamaConfig` fields); defaults: SmolLM2-1.7B as in Eagle-2."""
+
+    vocab_size: int = 49164  # Eagle-2's SmolLM2 vocabulary; must cover the tokenizer's ids
+    hidden_size: int = 2048
+    intermediate_size: int = 8192
+    num_hidden_layers: int = 24
+    num_attention_heads: int = 32
+    num_key_value_heads: int = 32
+    rope_theta: float = 130000.0
+    rms_norm_eps: float = 1e-5
+    max_position_embeddings: int = 8192
+    tie_word_embeddings: bool = True
+
+
+@dataclass
+class VisionLanguageConfig:
+    """System 2: Eagle-2-style VLM (SigLIP, pixel shuffle, MLP projector, Llama LLM read at a middle layer)."""
+
+    vision: VisionEncoderConfig = field(default_factory=VisionEncoderConfig)
+    llm: LanguageModelConfig = field(default_factory=LanguageModelConfig)
+    pixel_shuffle_ratio: float = 0.5  # (224/14)^2 * 0.5^2 = 64 image tokens per frame
+    select_layer: int = 12  # Q_vl = output of this LLM decoder layer (1-based), not the last one
+    drop_unused_llm_layers: bool = True  # build only `select_layer` layers (GR00T does); False keeps all
+    max_instruction_tokens: int = 128  # longer instructions are rejected
+    # Local pretrained weights (never downloaded). eagle2_path holds a whole Eagle-2 checkpoint
+    # (vision_model.*, mlp1.*, language_model.*); otherwise siglip_path / llm_path load the parts.
+    eagle2_path: str | None = None
+    siglip_path: str | None = None
+    llm_path: str | None = None
+    tokenizer_path: str | None = None  # None: the byte-level tokenizer (no download)
+
+
+@dataclass
+class VideoAutoencoderConfig:
+    """Video VAE shape (diffusers `AutoencoderKLTemporalDecoder`); defaults: SVD's."""
+
+    block_out_channels: tuple[int, ...] = (128, 256, 512, 512)  # 2**(len-1) spatial downsampling
+    layers_per_block: int = 2
+    latent_channels: int = 4
+    scaling_factor: float = 0.18215
+
+
+@dataclass
+class VideoUNetConfig:
+    """Spatio-temporal UNet shape (diffusers `UNetSpatioTemporalConditionModel`); defaults: SVD's 1.5B UNet."""
+
+    block_out_channels: tuple[int, ...] = (320, 640, 1280, 1280)
+    down_block_types: tuple[str, ...] = (
+        "CrossAttnDownBlockSpatioTemporal",
+        "CrossAttnDownBlockSpatioTemporal",
+        "CrossAttnDownBlockSpatioTemporal",
+        "DownBlockSpatioTemporal",
+    )
+    up_block_types: tuple[str, ...] = (
+        "UpBlockSpatioTemporal",
+        "CrossAttnUpBlockSpatioTemporal",
+        "CrossAttnUpBlockSpatioTemporal",
+        "CrossAttnUpBlockSpatioTemporal",
+    )
+    layers_per_block: int = 2
+    cross_attention_dim: int = 1024
+    num_attention_heads: tuple[int, ...] = (5, 10, 20, 20)
+    addition_time_embed_dim: int = 256  # x 3 added time ids (fps, motion bucket, noise aug)
+
+
+@dataclass
+class TextEncoderConfig:
+    """CLIP text encoder shape (transformers `CLIPTextConfig`); defaults: CLIP ViT-B/32's, as VPP uses."""
+
+    vocab_size: int = 49408
+    hidden_size: int = 512
+    intermediate_size: int = 2048
+    num_hidden_layers: int = 12
+    num_attention_heads: int = 8
+    max_position_embeddings: int = 77
+
+
+@dataclass
+class DynamicsConfig:
+    """System 3: SVD-style video diffusion model read out in one pass from its up-sampling blocks (VPP)."""
+
+    vae: VideoAutoencoderConfig = field(default_factory=VideoAutoencoderConfig)
+    unet: VideoUNetConfig = field(default_factory=VideoUNetConfig)
+    text: TextEncoderConfig = field(default_factory=TextEncoderConfig)
+    video_size: int = 256  # frames are resized to video_size^2 before the VAE (VPP: 256)
+    num_frames: int = 16  # clip length T+1: the current frame s_0 and T future frames
+    text_max_tokens: int = 77  # CLIP context; the instruction is padded to this length
+    feature_up_blocks: int = 2  # read up-blocks 0..n-1; later blocks and conv_out never run
+    feature_size: int = 16  # W_p = H_p, the common size features are interpolated to (eq. 3)
+    # EDM noise levels of SVD (v-prediction): x_t = x_0 + sigma * eps, network input c_in(sigma) x_t.
+    sigma_min: float = 0.002
+    sigma_max: float = 700.0  # "final noise level" used for the one-pass features
+    train_log_sigma_mean: float = 0.7  # log-normal sigma sampling for eq. (1) (SVD fine-tuning)
+    train_log_sigma_std: float = 1.6
+    fps_id: int = 6  # SVD added time ids: fps - 1, motion bucket, noise augmentation strength
+    motion_bucket_id: int = 127
+    noise_aug_strength: float = 0.0
+    # Local pretrained weights: svd_path holds `unet/` and `vae/` like the released SVD repo.
+    svd_path: str | None = None
+    unet_path: str | None = None
+    vae_path: str | None = None
+    text_encoder_path: str | None = None
+    text_tokenizer_path: str | None = None  # None: the byte-level tokenizer
+
+
+@dataclass
+class PolicyConfig:
+    """System 1: Video-Former aggregation (eq. 4) and a flow-matching DiT action head (GR00T-style)."""
+
+    state_dim: int = 18
+    action_dim: int = 7
+    action_horizon: int = 10  # action chunk length
+    num_embodiments: int = 32  # embodiment-specific state encoder / action encoder / decoder slots
+    hidden_size: int = 1536  # DiT width
+    num_layers: int = 16
+    num_heads: int = 32
+    mlp_ratio: float = 4.0
+    former_dim: int = 384  # Video Former (VPP: width 384, depth 6, 8 heads)
+    former_depth: int = 6
+    former_heads: int = 8
+    former_queries_per_frame: int = 16  # L in Q[0:T, 0:L]
+    num_inference_steps: int = 4  # Euler steps (GR00T: "4 are sufficient")
+    time_beta_alpha: float = 1.5  # training time t = (s - u) / s, u ~ Beta(alpha, beta)
+    time_beta_beta: float = 1.0
+    time_s: float = 0.999
+
+
+@dataclass
+class TriVLAConfig:
+    """The whole TriVLA model; `use_system2` / `use_system3` are the paper's Table 4 ablations."""
+
+    preset: str = "paper"
+    vision_language: VisionLanguageConfig = field(default_factory=VisionLanguageConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    use_system2: bool = True  # vision-language module (Q_vl)
+    use_system3: bool = True  # dynamics perception module (Q_p)
+    state_names: tuple[str, ...] = PANDA_STATE_NAMES
+    action_names: tuple[str, ...] = EE_DELTA_ACTION_NAMES
+    init_seed: int = 0  # seed of the random initialisation of every weight not loaded from disk
+
+    def __post_init__(self) -> None:
+        validate_config(self)
+
+
+def validate_config(config: TriVLAConfig) -> None:
+    """Raises ValueError naming the field when the configuration is inconsistent."""
+    vl, dyn, pol = config.vision_language, config.dynamics, config.policy
+    vision = vl.vision
+    if vision.image_size % vision.patch_size:
+        raise ValueError(
+            f"vision_language.vision.image_size ({vision.image_size}) must be a multiple of "
+            f"patch_size ({vision.patch_size})"
+        )
+    grid = vision.image_size // vision.patch_size
+    factor = round(1 / vl.pixel_shuffle_ratio)
+    if abs(factor * vl.pixel_shuffle_ratio - 1) > 1e-9 or grid % factor:
+        raise ValueError(
+            f"vision_language.pixel_shuffle_ratio ({vl.pixel_shuffle_ratio}) must be 1/k with k dividing "
+            f"the {grid}x{grid} patch grid"
+        )
+    if not 1 <= vl.select_layer <= vl.llm.num_hidden_layers:
+        raise ValueError(
+            f"vision_language.select_layer must be in [1, {vl.llm.num_hidden_layers}] "
+            f"(llm.num_hidden_layers); got {vl.select_layer}"
+        )
+    if vl.max_instruction_tokens < 1:
+        raise ValueError("vision_language.max_instruction_tokens must be >= 1")
+    n_up = len(dyn.unet.up_block_types)
+    if not 1 <= dyn.feature_up_blocks <= n_up:
+        raise ValueError(f"dynamics.feature_up_blocks must be in [1, {n_up}]; got {dyn.feature_up_blocks}")
+    if dyn.num_frames < 2:
+        raise ValueError(f"dynamics.num_frames must be >= 2 (current frame + future); got {dyn.num_frames}")
+    if dyn.text_max_tokens > dyn.text.max_position_embeddings or dyn.text_max_tokens < 3:
+        raise ValueError(
+            f"dynamics.text_max_tokens must be in [3, text.max_position_embeddings="
+            f"{dyn.text.max_position_embeddings}]; got {dyn.text_max_tokens}"
+        )
+    for name in ("state_dim", "action_dim", "action_horizon", "num_embodiments", "num_inference_steps"):
+        if getattr(pol, name) < 1:
+            raise ValueError(f"policy.{name} must be >= 1; got {getattr(pol, name)}")
+    if pol.hidden_size % pol.num_heads:
+        raise ValueError(f"policy.hidden_size ({pol.hidden_size}) must be divisible by num_heads ({pol.num_heads})")
+    if pol.former_dim % pol.former_heads:
+        raise ValueError(
+            f"policy.former_dim ({pol.former_dim}) must be divisible by former_heads ({pol.former_heads})"
+        )
+    if not 0 < pol.time_s <= 1:
+        raise ValueError(f"policy.time_s must be in (0, 1]; got {pol.time_s}")
+    if len(config.state_names) != pol.state_dim:
+        raise ValueError(f"state_names has {len(config.state_names)} names; policy.state_dim is {pol.state_dim}")
+    if len(config.action_names) != pol.action_dim:
+        raise ValueError(
+            f"action_names has {len(config.action_names)} names; policy.action_dim is {pol.action_dim}"
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Presets
+
+
+def _paper_config() -> TriVLAConfig:
+    return TriVLAConfig(preset="paper")
+
+
+def _cpu_config() -> TriVLAConfig:
+    # Sized for < 278 ms per full inference on 2 CPU cores (see benchmark.py) and CPU training.
+    from trivla_drake.nn.tokenizer import ByteTokenizer
+
+    return TriVLAConfig(
+        preset="cpu",
+        vision_language=VisionLanguageConfig(
+            vision=VisionEncoderConfig(
+                hidden_size=192, intermediate_size=768, num_hidden_layers=4, num_attention_heads=3
+            ),
+            llm=LanguageModelConfig(
+                vocab_size=ByteTokenizer.VOCAB_SIZE,
+                hidden_size=192,
+                intermediate_size=512,
+                num_hidden_layers=4,
+                num_attention_heads=3,
+                num_key_value_heads=3,
+                rope_theta=10000.0,
+                max_position_embeddings=512,
+            ),
+            select_layer=2,
+            drop_unused_llm_layers=False,  # keep all 4 layers so System 2 can be pretrained on VQA
+            max_instruction_tokens=120,
+        ),
+        dynamics=DynamicsConfig(
+            vae=VideoAutoencoderConfig(block_out_channels=(32, 32, 64, 64), layers_per_block=1),
+            unet=VideoUNetConfig(
+                block_out_channels=(32, 64, 64),
+                down_block_types=(
+                    "CrossAttnDownBlockSpatioTemporal",
+                    "CrossAttnDownBlockSpatioTemporal",
+                    "DownBlockSpatioTemporal",
+                ),
+                up_block_types=(
+                    "UpBlockSpatioTemporal",
+                    "CrossAttnUpBlockSpatioTemporal",
+                    "CrossAttnUpBlockSpatioTemporal",
+                ),
+                layers_per_block=1,
+                cross_attention_dim=64,
+                num_attention_heads=(2, 4, 4),
+                addition_time_embed_dim=32,
+            ),
+            text=TextEncoderConfig(
+                vocab_size=ByteTokenizer.VOCAB_SIZE,
+                hidden_size=64,
+                intermediate_size=256,
+                num_hidden_layers=2,
+                num_attention_heads=2,
+                max_position_embeddings=128,
+            ),
+            video_size=64,  # 64 px -> 8 x 8 latents
+            num_frames=5,  # current frame + 4 future frames
+            text_max_tokens=128,
+            feature_up_blocks=2,
+            feature_size=8,
+        ),
+        policy=PolicyConfig(
+            num_embodiments=4,
+            hidden_size=192,
+            num_layers=6,
+            num_heads=4,
+            former_dim=128,
+            former_depth=2,
+            former_heads=4,
+            former_queries_per_frame=4,
+        ),
+    )
+
+
+def _tiny_config() -> TriVLAConfig:
+    # The smallest shapes the library classes accept (GroupNorm needs channels divisible by 32).
+    from trivla_drake.nn.tokenizer import ByteTokenizer
+
+    return TriVLAConfig(
+        preset="tiny",
+        vision_language=VisionLanguageConfig(
+            vision=VisionEncoderConfig(
+                hidden_size=32, intermediate_size=64, num_hidden_layers=1, num_attention_heads=2
+            ),
+            llm=LanguageModelConfig(
+                vocab_size=ByteTokenizer.VOCAB_SIZE,
+                hidden_size=32,
+                intermediate_size=64,
+                num_hidden_layers=2,
+                num_attention_heads=2,
+                num_key_value_heads=1,
+                rope_theta=10000.0,
+                max_position_embeddings=512,
+            ),
+            select_layer=1,
+            drop_unused_llm_layers=False,
+            max_instruction_tokens=64,
+        ),
+        dynamics=DynamicsConfig(
+            vae=VideoAutoencoderConfig(block_out_channels=(32, 32), layers_per_block=1),
+            unet=VideoUNetConfig(
+                block_out_channels=(32, 32, 32),
+                down_block_types=(
+                    "CrossAttnDownBlockSpatioTemporal",
+                    "CrossAttnDownBlockSpatioTemporal",
+                    "DownBlockSpatioTemporal",
+                ),
+                up_block_types=(
+                    "UpBlockSpatioTemporal",
+                    "CrossAttnUpBlockSpatioTemporal",
+                    "CrossAttnUpBlockSpatioTemporal",
+                ),
+                layers_per_block=1,
+                cross_attention_dim=32,
+                num_attention_heads=(1, 2, 2),
+                addition_time_embed_dim=8,
+            ),
+            text=TextEncoderConfig(
+                vocab_size=ByteTokenizer.VOCAB_SIZE,
+                hidden_size=32,
+                intermediate_size=64,
+                num_hidden_layers=1,
+                num_attention_heads=2,
+                max_position_embeddings=72,
+            ),
+            video_size=16,  # 16 px -> 8 x 8 latents
+            num_frames=3,
+            text_max_tokens=72,
+            feature_up_blocks=2,
+            feature_size=4,
+        ),
+        policy=PolicyConfig(
+            num_embodiments=2,
+            hidden_size=32,
+            num_layers=2,
+            num_heads=2,
+            former_dim=32,
+            former_depth=1,
+            former_heads=2,
+            former_queries_per_frame=2,
+        ),
+    )
+
+
+PRESETS: dict[str, typing.Callable[[], TriVLAConfig]] = {
+    "tiny": _tiny_config,
+    "cpu": _cpu_config,
+    "paper": _paper_config,
+}
+"""Preset name -> config factory."""
+
+DEFAULT_PRESET = "cpu"
+
+
+def make_config(preset: str = DEFAULT_PRESET, **overrides: Any) -> TriVLAConfig:
+    """Returns the named preset's config (`tiny`, `cpu`, `paper`); top-level fields may be overridden."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
+    config = PRESETS[preset]()
+    if overrides:
+        config = dataclasses.replace(config, **overrides)
+    return config
+
+
+# ---------------------------------------------------------------------------------------------
+# JSON round trip
+
+
+def config_to_dict(config: TriVLAConfig) -> dict[str, Any]:
+    """The config as plain JSON-able data (tuples become lists)."""
+    return dataclasses.asdict(config)
+
+
+def config_from_dict(data: dict[str, Any]) -> TriVLAConfig:
+    """Rebuilds a config from `config_to_dict` data; unknown or ill-typed fields raise ValueError."""
+    return _from_dict(TriVLAConfig, data, "config")
+
+
+def _from_dict(cls: type, data: Any, where: str) -> Any:
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a JSON object; got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ValueError(f"{where} has unknown fields {sorted(unknown)}; known: {sorted(names)}")
+    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    return cls(**kwargs)
+
+
+def _coerce(hint: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if dataclasses.is_dataclass(hint):
+        return _from_dict(hint, value, where)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{where} must be a list; got {value!r}")
+        return tuple(_coerce(args[0], v, where) for v in value)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if value is None and type(None) in args:
+            return None
+        non_none = [a for a in args if a is not type(None)]
+        return _coerce(non_none[0], value, where)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} must be true/false; got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{where} must be an integer; got {value!r}")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{where} must be a number; got {value!r}")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{where} must be a string; got {value!r}")
+        return value
+    return value

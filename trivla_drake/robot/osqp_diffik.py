@@ -1,0 +1,247 @@
+"""Differential inverse kinematics for the Panda as a small QP solved by OSQP each controller tick.
+
+Per tick, with J the 6x7 end-effector Jacobian (LOCAL_WORLD_ALIGNED, rows [v; w]) at q:
+
+    min_v  |J v - V_des|^2_W  +  |N (v - v_posture)|^2  +  mu |v|^2
+    s.t.   max(-s v_max, g (q_lower + m - q) / dt)  <=  v  <=  min(s v_max, g (q_upper - m - q) / dt)
+
+V_des = gain * pose_error / dt, clipped to a maximum twist; W weighs rotation against translation;
+N = n n^T projects onto the null space of J (n its unit null vector), so the posture term cannot
+fight the task and leaves no steady-state pose error; mu is a Levenberg-Marquardt damping that grows
+as J's smallest singular value falls below a threshold. q_next = q + dt v.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+import pinocchio as pin
+import scipy.sparse as sp
+from scipy.linalg.lapack import dgesvd
+
+from trivla_drake.robot.panda_kinematics import PandaKinematics
+
+PANDA_HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+
+
+@dataclass
+class DiffIKParams:
+    """Settings of `OsqpDifferentialIK`; every default suits the simulated Panda at 100 Hz."""
+
+    # Controller tick [s]: the QP's velocities are integrated over it, q_next = q + dt v.
+    dt: float = 0.01
+    # Fraction of the pose error the commanded twist removes in one tick [-], in (0, 1].
+    gain: float = 1.0
+    # Cap on the commanded linear speed of the end effector [m/s].
+    max_linear_speed: float = 0.5
+    # Cap on the commanded angular speed of the end effector [rad/s].
+    max_angular_speed: float = 1.5
+    # Weight of the rotation rows of the task against the translation rows [m^2/rad^2]; it only
+    # matters when the target cannot be reached exactly (limits, singularities).
+    angular_weight: float = 1.0
+    # Fraction of the posture error (q_nominal - q) the null-space motion removes per tick [-].
+    posture_gain: float = 0.01
+    # Posture the redundant (null-space) degree of freedom is pulled towards [rad].
+    q_nominal: tuple[float, ...] = PANDA_HOME
+    # Fraction of the URDF velocity limits the solution may use [-], in (0, 1].
+    velocity_scale: float = 0.5
+    # Distance kept from each URDF position limit [rad].
+    position_margin: float = 0.01
+    # Fraction of the remaining distance to a position limit one tick may cover [-], in (0, 1];
+    # below 1 the arm slows down as it nears a limit instead of stopping in a single tick.
+    position_limit_gain: float = 0.5
+    # Constant Levenberg-Marquardt damping mu on |v|^2 [units of J^T J].
+    damping: float = 1e-6
+    # Extra damping reached when J's smallest singular value is zero [units of J^T J].
+    singular_damping: float = 2.5e-3
+    # Smallest singular value of J below which the extra damping ramps in [-].
+    singular_threshold: float = 0.05
+    # OSQP absolute and relative tolerances; 1e-6 keeps the steady-state pose error below 1e-6 m.
+    eps_abs: float = 1e-6
+    eps_rel: float = 1e-6
+    # OSQP iteration cap; a tick that hits it holds position instead of moving.
+    max_iter: int = 1000
+
+
+class DiffIKStatus(enum.Enum):
+    """Outcome of one `OsqpDifferentialIK.solve` tick."""
+
+    SOLVED = "solved"
+    # OSQP stopped short of its tolerances; the velocity is still clipped into the joint limits.
+    SOLVED_INACCURATE = "solved_inaccurate"
+    # Any other OSQP status (iteration cap, infeasible, ...): the tick holds position, v = 0.
+    SOLVER_FAILED = "solver_failed"
+
+
+@dataclass(frozen=True)
+class DiffIKResult:
+    """One tick's answer: the next joint position and the velocity that leads there."""
+
+    q_next: np.ndarray  # q + dt v [rad], shape (7,)
+    v: np.ndarray  # joint velocity [rad/s], shape (7,)
+    status: DiffIKStatus
+    pose_error: np.ndarray  # `pose_error(X_current, X_target)` before the step, shape (6,)
+
+    @property
+    def ok(self) -> bool:
+        """True when the QP produced a motion (solved, possibly inaccurately); False for a hold."""
+        return self.status is not DiffIKStatus.SOLVER_FAILED
+
+
+def pose_error(X_current: np.ndarray, X_target: np.ndarray) -> np.ndarray:
+    """6-D error [p_target - p; log3(R_target R^T)] between two 4x4 poses, in world axes [m; rad].
+
+    It is the twist (order [v; w], LOCAL_WORLD_ALIGNED) that moves X_current onto X_target in unit
+    time, the translation taken at the frame origin.
+    """
+    error = np.empty(6)
+    error[:3] = X_target[:3, 3] - X_current[:3, 3]
+    error[3:] = pin.log3(X_target[:3, :3] @ X_current[:3, :3].T)
+    return error
+
+
+def _clip_norm(x: np.ndarray, max_norm: float) -> None:
+    """Scale `x` in place so that its norm is at most `max_norm`, keeping its direction."""
+    norm = math.sqrt(x @ x)
+    if norm > max_norm:
+        x *= max_norm / norm
+
+
+class OsqpDifferentialIK:
+    """Joint-velocity differential IK: one warm-started OSQP solve per `solve(q, target_pose)` call.
+
+    The QP's sparsity is fixed in __init__ (dense upper-triangular P, identity A), so each tick only
+    rewrites P's values and the vectors q, l, u. Not thread-safe: it owns solver and kinematics state.
+    """
+
+    def __init__(self, kinematics: PandaKinematics, params: DiffIKParams | None = None) -> None:
+        self.kinematics = kinematics
+        self.params = params = params or DiffIKParams()
+        n = kinematics.nq
+        self._q_nominal = np.asarray(params.q_nominal, dtype=float)
+        _check_params(params, self._q_nominal, kinematics)
+        self._v_limit = params.velocity_scale * kinematics.v_max
+        # Row 0: lower position limits, row 1: upper ones, each moved inwards by the margin.
+        self._q_limits = np.stack(
+            [kinematics.q_lower + params.position_margin, kinematics.q_upper - params.position_margin]
+        )
+        self._limit_rate = params.position_limit_gain / params.dt
+        self._row_scale = np.sqrt([1.0, 1.0, 1.0] + [params.angular_weight] * 3)
+        self._row_scale_column = self._row_scale[:, None]
+
+        # The cost is |rows v - rhs|^2 + mu |v|^2, i.e. P = rows^T rows + mu I and q = -rows^T rhs;
+        # these buffers are rewritten every tick. rhs is stored negated so that q is one product.
+        self._rows = np.empty((7, n))  # [sqrt(W) J; null^T]
+        self._neg_rhs = np.empty(7)  # -[sqrt(W) V_des; null . v_posture]
+        self._hessian = np.empty((n, n))
+        self._hessian_diagonal = self._hessian.reshape(-1)[:: n + 1]  # a view
+        self._gradient = np.empty(n)
+        self._bounds = np.empty((2, n))  # [l; u] of the QP
+
+        # P's values are passed as its upper triangle in CSC order (column by column, rows 0..j):
+        # the row-major lower triangle, transposed, enumerates exactly that.
+        cols, rows = np.tril_indices(n)
+        self._triu_flat = rows * n + cols
+        pattern = sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        self._solver = osqp.OSQP()
+        # OSQP keeps (and later overwrites) the matrices given to setup(): hand it fresh ones.
+        self._solver.setup(
+            P=pattern,
+            q=np.zeros(n),
+            A=sp.identity(n, format="csc"),
+            l=-self._v_limit,
+            u=self._v_limit.copy(),
+            verbose=False,
+            # Polishing prints to stdout from C; the final clip into the box replaces it.
+            polishing=False,
+            warm_starting=True,
+            eps_abs=params.eps_abs,
+            eps_rel=params.eps_rel,
+            max_iter=params.max_iter,
+        )
+
+    def solve(self, q: np.ndarray, target_pose: np.ndarray) -> DiffIKResult:
+        """One controller tick: the joint velocity moving the end effector at q towards target_pose.
+
+        Raises ValueError when q is not a finite 7-vector or target_pose not a finite 4x4 matrix;
+        a failed QP returns a hold (v = 0, q_next = q) with status SOLVER_FAILED.
+        """
+        target_pose = np.asarray(target_pose, dtype=float)
+        if target_pose.shape != (4, 4):
+            raise ValueError(f"target_pose must be a 4x4 homogeneous matrix, got shape {target_pose.shape}")
+        if not np.isfinite(target_pose).all():
+            raise ValueError("target_pose contains NaN/inf")
+        p = self.params
+        pose, jacobian = self.kinematics.forward(q)
+        q = np.asarray(q, dtype=float)
+        error = pose_error(pose, target_pose)
+
+        # V_des (negated) = -gain * error / dt, each part capped at its maximum speed.
+        neg_twist = self._neg_rhs[:6]
+        np.multiply(error, -p.gain / p.dt, out=neg_twist)
+        _clip_norm(neg_twist[:3], p.max_linear_speed)
+        _clip_norm(neg_twist[3:], p.max_angular_speed)
+        neg_twist *= self._row_scale
+        np.multiply(jacobian, self._row_scale_column, out=self._rows[:6])
+
+        # The last right singular vector spans J's null space (J is 6x7), and |N x|^2 = (null . x)^2,
+        # so the projected posture term is one more least-squares row. The smallest singular value
+        # sets the damping, which only ramps in close to a singularity.
+        _, singular_values, vt, _ = dgesvd(jacobian)
+        null = self._rows[6] = vt[-1]
+        self._neg_rhs[6] = (p.posture_gain / p.dt) * (null @ (q - self._q_nominal))
+        mu = p.damping
+        sigma_min = singular_values[-1]
+        if sigma_min < p.singular_threshold:
+            mu += p.singular_damping * (1.0 - (sigma_min / p.singular_threshold) ** 2)
+
+        np.matmul(self._rows.T, self._rows, out=self._hessian)
+        self._hessian_diagonal += mu
+        np.matmul(self._neg_rhs, self._rows, out=self._gradient)
+
+        bounds = self._bounds
+        np.subtract(self._q_limits, q, out=bounds)
+        bounds *= self._limit_rate
+        # np.clip is several times slower than this pair on 7-vectors.
+        np.maximum(bounds, -self._v_limit, out=bounds)
+        np.minimum(bounds, self._v_limit, out=bounds)
+        self._solver.update(Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1])
+        result = self._solver.solve(raise_error=False)
+
+        status_val = result.info.status_val
+        if status_val == osqp.SolverStatus.OSQP_SOLVED:
+            status = DiffIKStatus.SOLVED
+        elif status_val == osqp.SolverStatus.OSQP_SOLVED_INACCURATE:
+            status = DiffIKStatus.SOLVED_INACCURATE
+        else:
+            # A failed run can leave a wild iterate behind; do not warm-start the next tick from it.
+            self._solver.warm_start(x=np.zeros_like(q), y=np.zeros_like(q))
+            return DiffIKResult(q.copy(), np.zeros_like(q), DiffIKStatus.SOLVER_FAILED, error)
+        # ADMM meets the bounds only to within its tolerance: clip, which is exact for a box.
+        v = np.maximum(result.x, bounds[0])
+        np.minimum(v, bounds[1], out=v)
+        return DiffIKResult(q + p.dt * v, v, status, error)
+
+
+def _check_params(params: DiffIKParams, q_nominal: np.ndarray, kinematics: PandaKinematics) -> None:
+    """Raise ValueError naming the first field of `params` outside its accepted range."""
+    if q_nominal.shape != (kinematics.nq,):
+        raise ValueError(f"q_nominal must have {kinematics.nq} entries, got {q_nominal.shape}")
+    for name in ("gain", "velocity_scale", "position_limit_gain"):
+        value = getattr(params, name)
+        if not 0.0 < value <= 1.0:
+            raise ValueError(f"{name} must be in (0, 1], got {value}")
+    for name in ("dt", "max_linear_speed", "max_angular_speed", "angular_weight", "singular_threshold"):
+        value = getattr(params, name)
+        if not value > 0.0:
+            raise ValueError(f"{name} must be positive, got {value}")
+    for name in ("posture_gain", "position_margin", "damping", "singular_damping"):
+        value = getattr(params, name)
+        if not value >= 0.0:
+            raise ValueError(f"{name} must be non-negative, got {value}")
+    if 2 * params.position_margin >= np.min(kinematics.q_upper - kinematics.q_lower):
+        raise ValueError(f"position_margin {params.position_margin} leaves no room between the joint limits")
