@@ -6,8 +6,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ScopedName
-from pydrake.systems.framework import DiagramBuilder, OutputPort
-from pydrake.systems.primitives import ZeroOrderHold
+from pydrake.systems.framework import DiagramBuilder, LeafSystem, OutputPort
 from pydrake.systems.sensors import CameraConfig, ImageRgba8U, RgbdSensor
 
 
@@ -21,6 +20,27 @@ def _frame_named(plant: MultibodyPlant, name: str | None, camera: str):
     if not plant.HasFrameNamed(scoped.get_element(), instance):
         raise ValueError(f"cameras.{camera}.X_PB.base_frame: no frame '{name}'")
     return plant.GetFrameByName(scoped.get_element(), instance)
+
+
+class ImageSampleAndHold(LeafSystem):
+    """Samples an ImageRgba8U input every `period_s` and at initialisation, and holds it.
+
+    Unlike Drake's ZeroOrderHold it also samples when the simulation is initialised, so a
+    consumer reading the image at t = 0 sees the scene rather than a blank frame.
+    """
+
+    def __init__(self, period_s: float, width: int, height: int):
+        super().__init__()
+        model = AbstractValue.Make(ImageRgba8U(width, height))
+        self._input = self.DeclareAbstractInputPort("image", model)
+        state_index = self.DeclareAbstractState(model)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.0, self._sample)
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._sample)
+        self.DeclareStateOutputPort("held_image", state_index)
+        self._state_index = state_index
+
+    def _sample(self, context, state):
+        state.get_mutable_abstract_state(self._state_index).set_value(self._input.Eval(context))
 
 
 def add_rgb_camera(
@@ -48,8 +68,7 @@ def add_rgb_camera(
     builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
     # Only colour is ever evaluated, so depth is never rendered.
     hold = builder.AddNamedSystem(
-        f"{name}_sample_and_hold",
-        ZeroOrderHold(1.0 / config.fps, AbstractValue.Make(ImageRgba8U(config.width, config.height))),
+        f"{name}_sample_and_hold", ImageSampleAndHold(1.0 / config.fps, config.width, config.height)
     )
     builder.Connect(sensor.color_image_output_port(), hold.get_input_port())
     return hold.get_output_port()

@@ -40,7 +40,7 @@ class Scenario:
     # The MultibodyPlant: time step [s], contact model, discrete solver approximation.
     plant_config: MultibodyPlantConfig = dc.field(
         default_factory=lambda: MultibodyPlantConfig(
-            time_step=0.002,
+            time_step=0.004,
             contact_model="hydroelastic_with_fallback",
             discrete_contact_approximation="lagged",
         )

@@ -1,0 +1,66 @@
+"""Shared fixtures: the default scenario, and a closed-loop station with a settable target."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+logging.getLogger("drake").setLevel(logging.ERROR)
+
+
+@pytest.fixture
+def scenario():
+    from trivla_drake.station.scenario import load_scenario
+
+    return load_scenario()
+
+
+class ClosedLoop:
+    """Station + DifferentialIKSystem with `ee_target` and `gripper_width` as fixed inputs."""
+
+    def __init__(self, scenario):
+        from pydrake.systems.analysis import Simulator
+        from pydrake.systems.framework import DiagramBuilder
+
+        from trivla_drake.station.station import make_station
+        from trivla_drake.systems.diffik_system import DifferentialIKSystem
+
+        builder = DiagramBuilder()
+        self.station = builder.AddNamedSystem("station", make_station(scenario))
+        self.diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem())
+        builder.Connect(self.station.GetOutputPort("panda.state"), self.diffik.GetInputPort("robot_state"))
+        builder.Connect(self.diffik.GetOutputPort("position_setpoint"), self.station.GetInputPort("panda.position"))
+        builder.ExportInput(self.diffik.GetInputPort("ee_target"), "ee_target")
+        builder.ExportInput(self.station.GetInputPort("panda.gripper_width"), "gripper_width")
+        self.diagram = builder.Build()
+        self.simulator = Simulator(self.diagram)
+        self.context = self.simulator.get_mutable_context()
+        self.plant = self.station.GetSubsystemByName("plant")
+        self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+
+    def go(self, position, width, seconds, rpy=(np.pi, 0.0, 0.0)):
+        """Hold a hand target (pointing down by default) and gripper width for `seconds`."""
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        target = RigidTransform(RollPitchYaw(rpy), np.asarray(position, dtype=float))
+        self.diagram.GetInputPort("ee_target").FixValue(self.context, target)
+        self.diagram.GetInputPort("gripper_width").FixValue(self.context, [width])
+        self.simulator.AdvanceTo(self.context.get_time() + seconds)
+
+    def tcp_position(self):
+        return self.plant.GetFrameByName("panda_hand_tcp").CalcPoseInWorld(self.plant_context).translation()
+
+    def body_position(self, model, body):
+        instance = self.plant.GetModelInstanceByName(model)
+        return self.plant.EvalBodyPoseInWorld(self.plant_context, self.plant.GetBodyByName(body, instance)).translation()
+
+    def output(self, name):
+        return self.station.GetOutputPort(name).Eval(self.station.GetMyContextFromRoot(self.context))
+
+
+@pytest.fixture
+def closed_loop(scenario):
+    scenario.cameras = {}  # physics-only tests need no rendering
+    return ClosedLoop(scenario)

@@ -1,0 +1,101 @@
+"""`trivla-drake`: one thin subcommand per job."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+
+def _print_result(result: dict, as_json: bool, title: str) -> None:
+    if as_json:
+        print(json.dumps(result))
+        return
+    print(f"| {title} | value |\n| --- | --- |")
+    for key, value in result.items():
+        shown = f"{value:.4g}" if isinstance(value, float) else value
+        print(f"| {key} | {shown} |")
+
+
+def _cmd_sim(args) -> int:
+    from trivla_drake.eval.scripted_run import run_scripted
+    from trivla_drake.station.meshcat_setup import make_meshcat
+    from trivla_drake.station.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario, args.scenario_name)
+    meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
+    if meshcat is not None and args.meshcat:
+        print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
+    timing = run_scripted(scenario, args.seconds, meshcat=meshcat, record_html=args.record)
+    result = timing.as_dict()
+    if args.record:
+        result["record"] = args.record
+    _print_result(result, args.json, "sim")
+    if args.meshcat and not args.json and sys.stdin.isatty():
+        input("Simulation done; the scene stays in Meshcat until you press Enter.")
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    result: dict = {}
+    if args.model:
+        from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
+
+        model_result = benchmark_model(preset=args.preset)
+        if args.json:
+            print(json.dumps(model_result))
+        else:
+            print(format_benchmark_table(model_result))
+        return 0
+    from trivla_drake.eval.diffik_benchmark import benchmark_diffik
+    from trivla_drake.eval.station_benchmark import benchmark_station
+    from trivla_drake.station.scenario import load_scenario
+
+    result.update(benchmark_diffik(num_problems=args.diffik_problems))
+    result.update(benchmark_station(load_scenario(args.scenario), seconds=args.seconds))
+    _print_result(result, args.json, "benchmark")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    sim = commands.add_parser("sim", help="run the station closed loop along a scripted end-effector path")
+    sim.add_argument("--seconds", type=float, default=8.0, help="simulated time [s] (default 8)")
+    sim.add_argument("--meshcat", action="store_true", help="show the run live in Meshcat (localhost)")
+    sim.add_argument("--port", type=int, default=None, help="Meshcat port (default: Drake's, 7000 up)")
+    sim.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
+    sim.add_argument("--scenario", default=None, help="scenarios YAML file (default: models/default.scenarios.yaml)")
+    sim.add_argument("--scenario-name", default="default", help="scenario to load from the file")
+    sim.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    sim.set_defaults(run=_cmd_sim)
+
+    bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
+    bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
+    bench.add_argument("--preset", default="cpu", help="model preset for --model (tiny, cpu, paper)")
+    bench.add_argument("--seconds", type=float, default=4.0, help="simulated time per station run [s]")
+    bench.add_argument("--diffik-problems", type=int, default=2000, help="diff-IK problems to time")
+    bench.add_argument("--scenario", default=None, help="scenarios YAML file")
+    bench.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    bench.set_defaults(run=_cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    # Drake's parser warnings (ROS-only URDF tags) are noise for a user; -v shows them.
+    logging.getLogger("drake").setLevel(logging.INFO if args.verbose else logging.ERROR)
+    from trivla_drake.station.scenario import ScenarioError
+
+    try:
+        return args.run(args)
+    except (ScenarioError, ValueError, FileNotFoundError) as error:
+        print(f"trivla-drake {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
