@@ -1,14 +1,15 @@
 """Differential inverse kinematics for the Panda as a small QP solved by OSQP each controller tick.
 
-Per tick, with J the 6x7 end-effector Jacobian (LOCAL_WORLD_ALIGNED, rows [v; w]) at q:
+Per tick, with J the 6x7 end-effector Jacobian at q (LOCAL_WORLD_ALIGNED, rows [v; w]):
 
     min_v  |J v - V_des|^2_W  +  |N (v - v_posture)|^2  +  mu |v|^2
     s.t.   max(-s v_max, g (q_lower + m - q) / dt)  <=  v  <=  min(s v_max, g (q_upper - m - q) / dt)
 
-V_des = gain * pose_error / dt, clipped to a maximum twist; W weighs rotation against translation;
-N = n n^T projects onto the null space of J (n its unit null vector), so the posture term cannot
-fight the task and leaves no steady-state pose error; mu is a Levenberg-Marquardt damping that grows
-as J's smallest singular value falls below a threshold. q_next = q + dt v.
+V_des = gain * pose_error / dt with each part capped at a maximum speed; W weighs rotation against
+translation; v_posture = posture_gain * (q_nominal - q) / dt; N = n n^T projects onto J's null space
+(n its unit null vector), so the posture term cannot fight the task and leaves no steady-state pose
+error; mu is a Levenberg-Marquardt damping that grows as J's smallest singular value falls below a
+threshold; s, g, m are velocity_scale, position_limit_gain, position_margin. q_next = q + dt v.
 """
 
 from __future__ import annotations
@@ -21,11 +22,12 @@ import numpy as np
 import osqp
 import pinocchio as pin
 import scipy.sparse as sp
-from scipy.linalg.lapack import dgesvd
+from scipy.linalg.lapack import dgesvd, dposv
 
 from trivla_drake.robot.panda_kinematics import PandaKinematics
 
 PANDA_HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+_IDENTITY3 = np.eye(3)
 
 
 @dataclass
@@ -73,7 +75,7 @@ class DiffIKStatus(enum.Enum):
     SOLVED = "solved"
     # OSQP stopped short of its tolerances; the velocity is still clipped into the joint limits.
     SOLVED_INACCURATE = "solved_inaccurate"
-    # Any other OSQP status (iteration cap, infeasible, ...): the tick holds position, v = 0.
+    # Any other OSQP status (iteration cap, infeasible, ...) or a failed SVD: the tick holds, v = 0.
     SOLVER_FAILED = "solver_failed"
 
 
@@ -167,14 +169,10 @@ class OsqpDifferentialIK:
     def solve(self, q: np.ndarray, target_pose: np.ndarray) -> DiffIKResult:
         """One controller tick: the joint velocity moving the end effector at q towards target_pose.
 
-        Raises ValueError when q is not a finite 7-vector or target_pose not a finite 4x4 matrix;
-        a failed QP returns a hold (v = 0, q_next = q) with status SOLVER_FAILED.
+        Raises ValueError when q is not a finite 7-vector or target_pose not a finite 4x4 rigid
+        transform; a failed QP returns a hold (v = 0, q_next = q) with status SOLVER_FAILED.
         """
-        target_pose = np.asarray(target_pose, dtype=float)
-        if target_pose.shape != (4, 4):
-            raise ValueError(f"target_pose must be a 4x4 homogeneous matrix, got shape {target_pose.shape}")
-        if not np.isfinite(target_pose).all():
-            raise ValueError("target_pose contains NaN/inf")
+        target_pose = _check_target_pose(target_pose)
         p = self.params
         pose, jacobian = self.kinematics.forward(q)
         q = np.asarray(q, dtype=float)
@@ -189,15 +187,17 @@ class OsqpDifferentialIK:
         np.multiply(jacobian, self._row_scale_column, out=self._rows[:6])
 
         # The last right singular vector spans J's null space (J is 6x7), and |N x|^2 = (null . x)^2,
-        # so the projected posture term is one more least-squares row. The smallest singular value
-        # sets the damping, which only ramps in close to a singularity.
-        _, singular_values, vt, _ = dgesvd(jacobian)
-        null = self._rows[6] = vt[-1]
-        self._neg_rhs[6] = (p.posture_gain / p.dt) * (null @ (q - self._q_nominal))
-        mu = p.damping
-        sigma_min = singular_values[-1]
-        if sigma_min < p.singular_threshold:
-            mu += p.singular_damping * (1.0 - (sigma_min / p.singular_threshold) ** 2)
+        # so the projected posture term is one more least-squares row. Below the singular threshold
+        # the damping ramps in, and the posture row fades out: there the two smallest singular
+        # directions trade places from tick to tick, and posture motion along either makes the arm chatter.
+        _, singular_values, vt, info = dgesvd(jacobian)
+        if info != 0:
+            return self._hold(q, error)
+        closeness = max(0.0, 1.0 - (singular_values[-1] / p.singular_threshold) ** 2)  # 0 far, 1 at it
+        mu = p.damping + p.singular_damping * closeness
+        posture_weight = 1.0 - closeness
+        np.multiply(vt[-1], posture_weight, out=self._rows[6])
+        self._neg_rhs[6] = (posture_weight * p.posture_gain / p.dt) * (vt[-1] @ (q - self._q_nominal))
 
         np.matmul(self._rows.T, self._rows, out=self._hessian)
         self._hessian_diagonal += mu
@@ -209,6 +209,14 @@ class OsqpDifferentialIK:
         # np.clip is several times slower than this pair on 7-vectors.
         np.maximum(bounds, -self._v_limit, out=bounds)
         np.minimum(bounds, self._v_limit, out=bounds)
+
+        # The only constraints are a box: when the unconstrained minimiser (one Cholesky solve) lies
+        # inside it, it is the QP's optimum (all multipliers zero), exact rather than to OSQP's
+        # tolerance, so OSQP only runs on ticks where a bound is active.
+        _, v, info = dposv(self._hessian, -self._gradient)
+        if info == 0 and (bounds[0] <= v).all() and (v <= bounds[1]).all():
+            return DiffIKResult(q + p.dt * v, v, DiffIKStatus.SOLVED, error)
+
         self._solver.update(Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1])
         result = self._solver.solve(raise_error=False)
 
@@ -220,11 +228,33 @@ class OsqpDifferentialIK:
         else:
             # A failed run can leave a wild iterate behind; do not warm-start the next tick from it.
             self._solver.warm_start(x=np.zeros_like(q), y=np.zeros_like(q))
-            return DiffIKResult(q.copy(), np.zeros_like(q), DiffIKStatus.SOLVER_FAILED, error)
+            return self._hold(q, error)
         # ADMM meets the bounds only to within its tolerance: clip, which is exact for a box.
         v = np.maximum(result.x, bounds[0])
         np.minimum(v, bounds[1], out=v)
         return DiffIKResult(q + p.dt * v, v, status, error)
+
+    @staticmethod
+    def _hold(q: np.ndarray, error: np.ndarray) -> DiffIKResult:
+        """The answer of a failed tick: stay at q."""
+        return DiffIKResult(q.copy(), np.zeros_like(q), DiffIKStatus.SOLVER_FAILED, error)
+
+
+def _check_target_pose(target_pose: np.ndarray) -> np.ndarray:
+    """Return target_pose as a float 4x4 array; ValueError naming it unless it is a finite rigid transform."""
+    target_pose = np.asarray(target_pose, dtype=float)
+    if target_pose.shape != (4, 4):
+        raise ValueError(f"target_pose must be a 4x4 homogeneous matrix, got shape {target_pose.shape}")
+    if not np.isfinite(target_pose).all():
+        raise ValueError("target_pose contains NaN/inf")
+    rotation = target_pose[:3, :3]
+    deviation = rotation.T @ rotation - _IDENTITY3
+    (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
+    determinant = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)  # np.linalg.det is slower
+    # 1e-10 on the squared deviation admits rotations that went through float32 (about 1e-7 off).
+    if (deviation * deviation).sum() > 1e-10 or determinant < 0.0:
+        raise ValueError(f"target_pose[:3, :3] must be a rotation matrix (orthonormal, det +1), got {rotation}")
+    return target_pose
 
 
 def _check_params(params: DiffIKParams, q_nominal: np.ndarray, kinematics: PandaKinematics) -> None:

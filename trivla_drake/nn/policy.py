@@ -1,0 +1,167 @@
+"""System 1, the policy learning module: Q_p from the Video Former (eq. 4), the embodiment-specific
+state token Q_s, and a flow-matching DiT action head with embodiment-specific action encoder and
+decoder that cross-attends to Q_vl and Q_p (eq. 5, trained by flow matching, see flow_matching.py)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from trivla_drake.nn import flow_matching
+from trivla_drake.nn.config import PolicyConfig
+from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
+from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
+from trivla_drake.nn.video_former import VideoFormer
+
+
+class ActionEncoder(nn.Module):
+    """Embodiment-specific encoder of a noisy action chunk and its flow time into DiT tokens (GR00T's)."""
+
+    def __init__(self, num_embodiments: int, action_dim: int, dim: int) -> None:
+        super().__init__()
+        self.dim = dim
+        self.w1 = EmbodimentLinear(num_embodiments, action_dim, dim)
+        self.w2 = EmbodimentLinear(num_embodiments, 2 * dim, dim)
+        self.w3 = EmbodimentLinear(num_embodiments, dim, dim)
+
+    def forward(self, actions: torch.Tensor, t: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
+        """actions (B, H, A), t (B,) -> tokens (B, H, dim)."""
+        a = self.w1(actions, embodiment_id)
+        tau = sinusoidal_embedding(t, self.dim).to(a.dtype).unsqueeze(1).expand_as(a)
+        return self.w3(F.silu(self.w2(torch.cat([a, tau], dim=-1), embodiment_id)), embodiment_id)
+
+
+class FlowMatchingPolicy(nn.Module):
+    """System 1: Video Former -> Q_p; state MLP -> Q_s; DiT velocity field over action chunks."""
+
+    def __init__(
+        self,
+        config: PolicyConfig,
+        *,
+        vl_dim: int | None,
+        dynamics_feature_shape: tuple[int, int, int, int] | None,
+    ) -> None:
+        super().__init__()
+        self.config = config
+        dim, num_emb = config.hidden_size, config.num_embodiments
+        self.state_encoder = EmbodimentMLP(num_emb, config.state_dim, dim, dim)
+        self.action_encoder = ActionEncoder(num_emb, config.action_dim, dim)
+        self.action_pos = nn.Parameter(torch.randn(config.action_horizon, dim) * 0.02)
+        self.time_embed = TimeEmbedding(dim)
+        self.dit = DiffusionTransformer(dim, config.num_layers, config.num_heads, config.mlp_ratio)
+        self.action_decoder = EmbodimentMLP(num_emb, dim, dim, config.action_dim)
+        self.source_embed = nn.Parameter(torch.randn(2, dim) * 0.02)  # marks Q_vl vs Q_p tokens
+        self.uses_vl = vl_dim is not None
+        self.uses_dynamics = dynamics_feature_shape is not None
+        if self.uses_vl:
+            self.vl_norm = nn.LayerNorm(vl_dim)
+            self.vl_proj = nn.Linear(vl_dim, dim)
+        if self.uses_dynamics:
+            frames, channels, size, _ = dynamics_feature_shape
+            self.video_former = VideoFormer(
+                feature_channels=channels,
+                num_frames=frames,
+                feature_size=size,
+                dim=config.former_dim,
+                depth=config.former_depth,
+                num_heads=config.former_heads,
+                queries_per_frame=config.former_queries_per_frame,
+            )
+            self.dynamics_proj = nn.Linear(config.former_dim, dim)
+        if not (self.uses_vl or self.uses_dynamics):
+            # The System-1-only ablation: nothing to attend to but a learned token (state-only policy).
+            self.null_memory = nn.Parameter(torch.randn(1, dim) * 0.02)
+
+    # ------------------------------------------------------------------ conditions
+
+    def encode_state(self, state: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
+        """Normalised state (B, state_dim) -> Q_s (B, hidden)."""
+        return self.state_encoder(state, embodiment_id)
+
+    def aggregate_dynamics(self, static: torch.Tensor, wrist: torch.Tensor) -> torch.Tensor:
+        """F_p of both views (B, T, C, H_p, W_p) -> Q_p (B, T*L, former_dim), eq. (4)."""
+        return self.video_former([static, wrist])
+
+    def memory(
+        self, q_vl: torch.Tensor | None, q_vl_mask: torch.Tensor | None, q_p: torch.Tensor | None, batch: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Condition tokens for the DiT's cross-attention: [Q_vl; Q_p] at DiT width (B, M, D), mask (B, M)."""
+        parts, masks = [], []
+        if self.uses_vl:
+            if q_vl is None:
+                raise ValueError("q_vl is required: System 2 is enabled in this model")
+            parts.append(self.vl_proj(self.vl_norm(q_vl)) + self.source_embed[0])
+            masks.append(
+                q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
+            )
+        if self.uses_dynamics:
+            if q_p is None:
+                raise ValueError("dynamics features are required: System 3 is enabled in this model")
+            parts.append(self.dynamics_proj(q_p) + self.source_embed[1])
+            masks.append(torch.ones(q_p.shape[:2], dtype=torch.bool, device=q_p.device))
+        if not parts:
+            parts.append(self.null_memory.unsqueeze(0).expand(batch, -1, -1))
+            masks.append(torch.ones(batch, 1, dtype=torch.bool, device=self.null_memory.device))
+        return torch.cat(parts, dim=1), torch.cat(masks, dim=1)
+
+    # ------------------------------------------------------------------ flow matching
+
+    def velocity(
+        self,
+        x: torch.Tensor,
+        t: torch.Tensor,
+        q_s: torch.Tensor,
+        memory: torch.Tensor,
+        memory_mask: torch.Tensor,
+        embodiment_id: torch.Tensor,
+    ) -> torch.Tensor:
+        """Predicted velocity (B, H, A) of noisy normalised action chunks x (B, H, A) at flow times t (B,)."""
+        actions = self.action_encoder(x, t, embodiment_id) + self.action_pos
+        tokens = torch.cat([q_s.unsqueeze(1), actions], dim=1)
+        out = self.dit(tokens, self.time_embed(t), memory, memory_mask)
+        return self.action_decoder(out[:, 1:], embodiment_id)
+
+    def loss(
+        self,
+        actions: torch.Tensor,
+        q_s: torch.Tensor,
+        memory: torch.Tensor,
+        memory_mask: torch.Tensor,
+        embodiment_id: torch.Tensor,
+        *,
+        action_mask: torch.Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flow-matching loss on normalised action chunks (B, H, A); `action_mask` (B, H) drops padded steps."""
+        c = self.config
+        mask = None if action_mask is None else action_mask.unsqueeze(-1)
+        return flow_matching.flow_matching_loss(
+            lambda x, t: self.velocity(x, t, q_s, memory, memory_mask, embodiment_id),
+            actions,
+            alpha=c.time_beta_alpha,
+            beta=c.time_beta_beta,
+            s=c.time_s,
+            generator=generator,
+            mask=mask,
+        )
+
+    def sample(
+        self,
+        q_s: torch.Tensor,
+        memory: torch.Tensor,
+        memory_mask: torch.Tensor,
+        embodiment_id: torch.Tensor,
+        *,
+        generator: torch.Generator | None = None,
+        num_steps: int | None = None,
+    ) -> torch.Tensor:
+        """Normalised action chunks (B, H, A) by Euler integration from Gaussian noise."""
+        c = self.config
+        shape = (q_s.shape[0], c.action_horizon, c.action_dim)
+        noise = torch.randn(shape, generator=generator, dtype=torch.float32).to(q_s.device, q_s.dtype)
+        return flow_matching.euler_sample(
+            lambda x, t: self.velocity(x, t, q_s, memory, memory_mask, embodiment_id),
+            noise,
+            num_steps or c.num_inference_steps,
+        )

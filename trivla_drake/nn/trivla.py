@@ -1,0 +1,465 @@
+"""The whole TriVLA model: System 2 (vision-language), System 3 (dynamics perception), System 1 (policy).
+
+Two interfaces:
+- per observation, numpy in / numpy out, split so that Drake systems can run the parts at different
+  rates: `encode_vision_language`, `encode_dynamics`, `sample_actions`, composed by `predict_action_chunk`;
+- batched torch tensors for training: `compute_loss` (System 1, flow matching), `compute_video_loss`
+  (System 3, eq. 1) and `compute_vlm_loss` (System 2, next-token loss on VQA answers).
+Actions leave the model unnormalised; the model applies the normalisation statistics it carries.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+from torch import nn
+
+from trivla_drake.nn.chat_prompt import tokenize_instruction
+from trivla_drake.nn.config import TriVLAConfig, validate_config
+from trivla_drake.nn.dynamics import DynamicsPerceptionModule
+from trivla_drake.nn.embodiment import check_embodiment_ids
+from trivla_drake.nn.normalization import NormalizationStats, Normalizer
+from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
+from trivla_drake.nn.policy import FlowMatchingPolicy
+from trivla_drake.nn.tokenizer import TextTokenizer, load_tokenizer
+from trivla_drake.nn.vision_language import VisionLanguageModule
+
+# Independent random streams derived from one user seed.
+_DYNAMICS_STREAM = 1
+_ACTION_STREAM = 2
+
+
+def resolve_seed(seed: int | None) -> int:
+    """`seed` itself, or a fresh one drawn from torch's global generator when None."""
+    if seed is None:
+        return int(torch.randint(0, 2**62, (1,)))
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be an int or None; got {seed!r}")
+    return int(seed)
+
+
+def stream_generator(seed: int, stream: int) -> torch.Generator:
+    """A CPU generator for one random stream (dynamics noise, action noise) of a seed."""
+    return torch.Generator().manual_seed((int(seed) * 1_000_003 + stream) % (2**63 - 1))
+
+
+class TriVLA(nn.Module):
+    """TriVLA: System 2 gives Q_vl, System 3 gives F_p per view, System 1 turns Q_vl, Q_p and Q_s into a
+    (10, 7) action chunk by flow matching. `config.use_system2/3 = False` drops a system (Table 4)."""
+
+    def __init__(
+        self,
+        config: TriVLAConfig,
+        *,
+        normalization: NormalizationStats | None = None,
+        component_configs: dict[str, Any] | None = None,
+        tokenizers: dict[str, TextTokenizer] | None = None,
+        load_pretrained: bool = True,
+    ) -> None:
+        """Builds the model. Weights come from the local pretrained directories named in `config` when
+        `load_pretrained`; everything else is initialised from `config.init_seed` (the global RNG is left
+        untouched). `component_configs` / `tokenizers` are what `load_checkpoint` passes to rebuild exactly."""
+        super().__init__()
+        validate_config(config)
+        self.config = config
+        tokenizers = tokenizers or {}
+        components = component_configs or {}
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.init_seed)
+            self.vision_language: VisionLanguageModule | None = None
+            self.dynamics: DynamicsPerceptionModule | None = None
+            if config.use_system2:
+                vl = config.vision_language
+                tok = tokenizers.get("vision_language") or load_tokenizer(vl.tokenizer_path if load_pretrained else None)
+                self.vision_language = VisionLanguageModule.from_config(
+                    vl, tok, component_configs=components.get("vision_language"), load_pretrained=load_pretrained
+                )
+            if config.use_system3:
+                dyn = config.dynamics
+                tok = tokenizers.get("dynamics") or load_tokenizer(dyn.text_tokenizer_path if load_pretrained else None)
+                self.dynamics = DynamicsPerceptionModule.from_config(
+                    dyn, tok, component_configs=components.get("dynamics"), load_pretrained=load_pretrained
+                )
+            self.policy = FlowMatchingPolicy(
+                config.policy,
+                vl_dim=self.vision_language.hidden_size if self.vision_language else None,
+                dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
+            )
+        pol = config.policy
+        stats = normalization or NormalizationStats.identity(pol.state_dim, pol.action_dim)
+        stats.check_dims(pol.state_dim, pol.action_dim)
+        self.normalizer = Normalizer(stats)
+        self.image_size = (
+            self.vision_language.image_size if self.vision_language else config.vision_language.vision.image_size
+        )
+
+    # ------------------------------------------------------------------ bookkeeping
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the weights."""
+        return self.policy.action_pos.device
+
+    @property
+    def normalization(self) -> NormalizationStats:
+        """The normalisation statistics applied to states and actions."""
+        return self.normalizer.stats
+
+    def set_normalization(self, stats: NormalizationStats) -> None:
+        """Replaces the normalisation statistics (e.g. with those of the training set)."""
+        stats.check_dims(self.config.policy.state_dim, self.config.policy.action_dim)
+        self.normalizer.set_stats(stats)
+
+    def parameter_counts(self) -> dict[str, int]:
+        """Parameters per system: system2 (SigLIP, projector, LLM), system3 (VAE, CLIP text, UNet),
+        system1 (state encoder, Video Former, DiT, action encoder/decoder), and total."""
+
+        def count(module: nn.Module | None) -> int:
+            return sum(p.numel() for p in module.parameters()) if module is not None else 0
+
+        counts = {
+            "system2": count(self.vision_language),
+            "system3": count(self.dynamics),
+            "system1": count(self.policy),
+        }
+        counts["total"] = sum(counts.values())
+        return counts
+
+    def component_configs(self) -> dict[str, Any]:
+        """Library configs of the pretrained-architecture parts (recorded in checkpoints)."""
+        out: dict[str, Any] = {}
+        if self.vision_language is not None:
+            out["vision_language"] = self.vision_language.component_configs()
+        if self.dynamics is not None:
+            out["dynamics"] = self.dynamics.component_configs()
+        return out
+
+    def action_space(self) -> dict[str, Any]:
+        """Description of the action chunk the model outputs."""
+        pol = self.config.policy
+        return {
+            "horizon": pol.action_horizon,
+            "dim": pol.action_dim,
+            "names": list(self.config.action_names),
+            "description": "relative end-effector pose change (dx, dy, dz, drx, dry, drz) and gripper command, "
+            "unnormalised, one row per control step",
+        }
+
+    # ------------------------------------------------------------------ tokenisation
+
+    def _vl_instruction_ids(self, instructions: list[str], field: str) -> list[list[int]]:
+        vl = self.vision_language
+        return [
+            tokenize_instruction(vl.tokenizer, text, self.config.vision_language.max_instruction_tokens, field)
+            for text in instructions
+        ]
+
+    def _dyn_instruction_ids(self, instructions: list[str], field: str) -> list[list[int]]:
+        dyn = self.dynamics
+        specials = (dyn.tokenizer.bos_token_id is not None) + (dyn.tokenizer.eos_token_id is not None)
+        return [
+            tokenize_instruction(dyn.tokenizer, text, self.config.dynamics.text_max_tokens - specials, field)
+            for text in instructions
+        ]
+
+    def check_instruction(self, instruction: Any, field: str = "instruction") -> None:
+        """Raises ValueError naming `field` if an instruction is not a non-empty, short-enough str."""
+        if self.vision_language is not None:
+            self._vl_instruction_ids([instruction], field)
+        if self.dynamics is not None:
+            self._dyn_instruction_ids([instruction], field)
+        if self.vision_language is None and self.dynamics is None:
+            tokenize_instruction(load_tokenizer(None), instruction, 10**9, field)
+
+    # ------------------------------------------------------------------ batched torch API
+
+    def _images(self, images: Any, name: str) -> torch.Tensor:
+        t = torch.as_tensor(images)
+        size = self.image_size
+        if t.dtype != torch.uint8 or t.dim() != 4 or tuple(t.shape[1:]) != (size, size, 3):
+            raise ValueError(f"{name} must be uint8 (B, {size}, {size}, 3); got {t.dtype} {tuple(t.shape)}")
+        return t.to(self.device)
+
+    def encode_vision_language_batch(
+        self, static_rgb: torch.Tensor, wrist_rgb: torch.Tensor, instructions: list[str]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """System 2 on a batch: uint8 (B, H, W, 3) views and B instructions -> Q_vl (B, S, D_llm), mask (B, S)."""
+        if self.vision_language is None:
+            raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
+        images = torch.stack([self._images(static_rgb, "static_rgb"), self._images(wrist_rgb, "wrist_rgb")], dim=1)
+        return self.vision_language(images, self._vl_instruction_ids(list(instructions), "instruction"))
+
+    def encode_state_batch(self, state: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
+        """Unnormalised states (B, state_dim) -> Q_s (B, hidden) with each sample's embodiment MLP."""
+        state = torch.as_tensor(state, dtype=torch.float32, device=self.device)
+        embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
+        check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
+        if not torch.isfinite(state).all():
+            raise ValueError("state has NaN or infinite entries")
+        return self.policy.encode_state(self.normalizer.normalize_state(state), embodiment_id)
+
+    def encode_dynamics_batch(
+        self,
+        static_rgb: torch.Tensor,
+        wrist_rgb: torch.Tensor,
+        instructions: list[str],
+        *,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """System 3 on a batch, both views in ONE UNet pass -> F_p^static, F_p^wrist, each (B, T+1, C, H_p, W_p)."""
+        if self.dynamics is None:
+            raise ValueError("System 3 is disabled in this model (config.use_system3 = False)")
+        static = self._images(static_rgb, "static_rgb")
+        wrist = self._images(wrist_rgb, "wrist_rgb")
+        ids = self._dyn_instruction_ids(list(instructions), "instruction")
+        features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
+        return features[: static.shape[0]], features[static.shape[0] :]
+
+    def _memory(self, q_vl, q_vl_mask, f_static, f_wrist, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+        q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
+        return self.policy.memory(q_vl if self.vision_language is not None else None, q_vl_mask, q_p, batch)
+
+    def sample_actions_batch(
+        self,
+        q_vl: torch.Tensor | None,
+        q_vl_mask: torch.Tensor | None,
+        q_s: torch.Tensor,
+        f_static: torch.Tensor | None,
+        f_wrist: torch.Tensor | None,
+        embodiment_id: torch.Tensor,
+        *,
+        generator: torch.Generator | None = None,
+        num_steps: int | None = None,
+    ) -> torch.Tensor:
+        """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A)."""
+        embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
+        check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
+        memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, q_s.shape[0])
+        actions = self.policy.sample(q_s, memory, mask, embodiment_id, generator=generator, num_steps=num_steps)
+        return self.normalizer.unnormalize_action(actions)
+
+    # ------------------------------------------------------------------ per-observation numpy API
+
+    @torch.inference_mode()
+    def encode_vision_language(
+        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray, embodiment_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """System 2 (and the state token). numpy uint8 (H, W, 3) views, str, float (state_dim,) ->
+        Q_vl float32 (S, D_llm) (shape (0, 0) when System 2 is disabled) and Q_s float32 (hidden,)."""
+        q_s = self.encode_state(state, embodiment_id)
+        size = self.image_size
+        static = check_image("static_rgb", static_rgb, size)
+        wrist = check_image("wrist_rgb", wrist_rgb, size)
+        if self.vision_language is None:
+            self.check_instruction(instruction)
+            return np.zeros((0, 0), dtype=np.float32), q_s
+        q_vl, _ = self.encode_vision_language_batch(
+            torch.from_numpy(static)[None], torch.from_numpy(wrist)[None], [instruction]
+        )
+        return q_vl[0].float().cpu().numpy(), q_s
+
+    @torch.inference_mode()
+    def encode_state(self, state: np.ndarray, embodiment_id: int = 0) -> np.ndarray:
+        """Q_s float32 (hidden,) of an unnormalised state (state_dim,) with the embodiment's state MLP."""
+        state = check_state("state", state, self.config.policy.state_dim)
+        eid = check_embodiment_id("embodiment_id", embodiment_id, self.config.policy.num_embodiments)
+        q_s = self.encode_state_batch(torch.from_numpy(state)[None], torch.tensor([eid]))
+        return q_s[0].float().cpu().numpy()
+
+    @torch.inference_mode()
+    def encode_dynamics(
+        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, *, seed: int | None = None
+    ) -> dict[str, np.ndarray]:
+        """System 3, one UNet pass for both views. Returns {"static": F_p, "wrist": F_p}, each float32
+        (T+1, sum C_m, H_p, W_p); an empty dict when System 3 is disabled. `seed` fixes the noise latents."""
+        size = self.image_size
+        static = check_image("static_rgb", static_rgb, size)
+        wrist = check_image("wrist_rgb", wrist_rgb, size)
+        if self.dynamics is None:
+            self.check_instruction(instruction)
+            return {}
+        generator = stream_generator(resolve_seed(seed), _DYNAMICS_STREAM)
+        f_static, f_wrist = self.encode_dynamics_batch(
+            torch.from_numpy(static)[None], torch.from_numpy(wrist)[None], [instruction], generator=generator
+        )
+        return {"static": f_static[0].float().cpu().numpy(), "wrist": f_wrist[0].float().cpu().numpy()}
+
+    def _as_tensor(self, value: Any, name: str, shape: tuple[int | None, ...]) -> torch.Tensor:
+        t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not torch.is_tensor(value) else value)
+        if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
+            raise ValueError(f"{name} must have shape {tuple('any' if s is None else s for s in shape)}; got {tuple(t.shape)}")
+        if not torch.isfinite(t).all():
+            raise ValueError(f"{name} has NaN or infinite entries")
+        return t.to(self.device, torch.float32)
+
+    @torch.inference_mode()
+    def sample_actions(
+        self,
+        q_vl: np.ndarray | None,
+        q_s: np.ndarray,
+        dynamics_features: Mapping[str, np.ndarray] | None,
+        *,
+        seed: int | None = None,
+        embodiment_id: int = 0,
+        num_steps: int | None = None,
+    ) -> np.ndarray:
+        """System 1: Q_vl (S, D_llm), Q_s (hidden,) and the per-view F_p of `encode_dynamics` (numpy or torch)
+        -> unnormalised float32 (action_horizon, action_dim). `seed` fixes the initial noise."""
+        pol = self.config.policy
+        eid = check_embodiment_id("embodiment_id", embodiment_id, pol.num_embodiments)
+        q_s_t = self._as_tensor(q_s, "q_s", (pol.hidden_size,))[None]
+        q_vl_t = None
+        if self.vision_language is not None:
+            if q_vl is None:
+                raise ValueError("q_vl is missing: System 2 is enabled, pass encode_vision_language's Q_vl")
+            q_vl_t = self._as_tensor(q_vl, "q_vl", (None, self.vision_language.hidden_size))[None]
+            if q_vl_t.shape[1] == 0:
+                raise ValueError("q_vl is empty: System 2 is enabled, pass encode_vision_language's Q_vl")
+        f_static = f_wrist = None
+        if self.dynamics is not None:
+            dynamics_features = dynamics_features or {}
+            shape = self.dynamics.feature_shape
+            for view in ("static", "wrist"):
+                if view not in dynamics_features:
+                    raise ValueError(f"dynamics_features['{view}'] is missing: System 3 is enabled")
+            f_static = self._as_tensor(dynamics_features["static"], "dynamics_features['static']", shape)[None]
+            f_wrist = self._as_tensor(dynamics_features["wrist"], "dynamics_features['wrist']", shape)[None]
+        generator = stream_generator(resolve_seed(seed), _ACTION_STREAM)
+        actions = self.sample_actions_batch(
+            q_vl_t, None, q_s_t, f_static, f_wrist, torch.tensor([eid], device=self.device),
+            generator=generator, num_steps=num_steps,
+        )
+        return actions[0].float().cpu().numpy()
+
+    @torch.inference_mode()
+    def predict_action_chunk(
+        self, observation: Mapping[str, Any], *, seed: int | None = None, num_steps: int | None = None
+    ) -> np.ndarray:
+        """The whole model on one observation (see observation.py for the dict) -> unnormalised float32
+        (action_horizon, action_dim). Equal to sample_actions(encode_vision_language(...),
+        encode_dynamics(..., seed=seed), seed=seed) for the same seed."""
+        pol = self.config.policy
+        obs = check_observation(
+            observation, image_size=self.image_size, state_dim=pol.state_dim, num_embodiments=pol.num_embodiments
+        )
+        self.check_instruction(obs["instruction"], "observation['instruction']")
+        seed = resolve_seed(seed)
+        q_vl, q_s = self.encode_vision_language(
+            obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], obs["state"], obs["embodiment_id"]
+        )
+        features = self.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=seed)
+        return self.sample_actions(
+            q_vl if self.vision_language is not None else None,
+            q_s,
+            features,
+            seed=seed,
+            embodiment_id=obs["embodiment_id"],
+            num_steps=num_steps,
+        )
+
+    # ------------------------------------------------------------------ training losses
+
+    def _batch_tensor(self, batch: Mapping[str, Any], key: str, dtype: torch.dtype | None = torch.float32) -> torch.Tensor:
+        if key not in batch:
+            raise ValueError(f"batch is missing {key!r}")
+        t = torch.as_tensor(batch[key])
+        return t.to(self.device, dtype) if dtype is not None else t.to(self.device)
+
+    def compute_loss(
+        self,
+        batch: Mapping[str, Any],
+        *,
+        generator: torch.Generator | None = None,
+        train_systems_2_3: bool = False,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """System 1's flow-matching loss (eq. 5 with velocity regression) on a batch of B samples.
+
+        Keys: "action" float (B, H, A) and "state" float (B, state_dim), both unnormalised;
+        "embodiment_id" long (B,) (default zeros); "action_is_pad" bool (B, H) (optional, True = padding);
+        and either raw inputs "static_rgb"/"wrist_rgb" uint8 (B, H, W, 3) + "instruction" list[str], or
+        precomputed "q_vl" (B, S, D_llm) + optional "q_vl_mask" (B, S) and "dynamics_static"/
+        "dynamics_wrist" (B, T+1, C, H_p, W_p). Systems 2 and 3 run without gradient unless train_systems_2_3.
+        Returns (loss, info)."""
+        pol = self.config.policy
+        actions = self._batch_tensor(batch, "action")
+        state = self._batch_tensor(batch, "state")
+        b = actions.shape[0]
+        if tuple(actions.shape[1:]) != (pol.action_horizon, pol.action_dim):
+            raise ValueError(
+                f"batch['action'] must be (B, {pol.action_horizon}, {pol.action_dim}); got {tuple(actions.shape)}"
+            )
+        if tuple(state.shape) != (b, pol.state_dim):
+            raise ValueError(f"batch['state'] must be ({b}, {pol.state_dim}); got {tuple(state.shape)}")
+        for key, value in (("action", actions), ("state", state)):
+            if not torch.isfinite(value).all():
+                raise ValueError(f"batch['{key}'] has NaN or infinite entries")
+        eid = (
+            self._batch_tensor(batch, "embodiment_id", torch.long)
+            if "embodiment_id" in batch
+            else torch.zeros(b, dtype=torch.long, device=self.device)
+        )
+        check_embodiment_ids(eid, pol.num_embodiments)
+        pad = batch.get("action_is_pad")
+        action_mask = None if pad is None else ~torch.as_tensor(pad, dtype=torch.bool, device=self.device)
+
+        with torch.set_grad_enabled(train_systems_2_3 and torch.is_grad_enabled()):
+            q_vl = q_vl_mask = f_static = f_wrist = None
+            if self.vision_language is not None:
+                if "q_vl" in batch:
+                    q_vl = self._batch_tensor(batch, "q_vl")
+                    if "q_vl_mask" in batch:
+                        q_vl_mask = self._batch_tensor(batch, "q_vl_mask", torch.bool)
+                else:
+                    q_vl, q_vl_mask = self.encode_vision_language_batch(
+                        batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"])
+                    )
+            if self.dynamics is not None:
+                if "dynamics_static" in batch:
+                    f_static = self._batch_tensor(batch, "dynamics_static")
+                    f_wrist = self._batch_tensor(batch, "dynamics_wrist")
+                else:
+                    f_static, f_wrist = self.encode_dynamics_batch(
+                        batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
+                    )
+        q_s = self.policy.encode_state(self.normalizer.normalize_state(state), eid)
+        memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, b)
+        loss, t = self.policy.loss(
+            self.normalizer.normalize_action(actions), q_s, memory, mask, eid, action_mask=action_mask, generator=generator
+        )
+        return loss, {"loss": float(loss.detach()), "flow_time_mean": float(t.mean())}
+
+    def compute_video_loss(
+        self, batch: Mapping[str, Any], *, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """System 3's eq. (1) on clips: "video" uint8 (B, T+1, H, W, 3) (frame 0 = current frame, any camera)
+        and "instruction" list[str]. Returns (loss, info)."""
+        if self.dynamics is None:
+            raise ValueError("System 3 is disabled in this model (config.use_system3 = False)")
+        video = self._batch_tensor(batch, "video", None)
+        if video.dtype != torch.uint8 or video.dim() != 5 or video.shape[-1] != 3:
+            raise ValueError(f"batch['video'] must be uint8 (B, T+1, H, W, 3); got {video.dtype} {tuple(video.shape)}")
+        if "instruction" not in batch:
+            raise ValueError("batch is missing 'instruction'")
+        ids = self._dyn_instruction_ids(list(batch["instruction"]), "batch['instruction']")
+        return self.dynamics.video_loss(video, ids, generator=generator)
+
+    def compute_vlm_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+        """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
+        (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. Returns (loss, info)."""
+        if self.vision_language is None:
+            raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
+        for key in ("static_rgb", "wrist_rgb", "instruction", "answer"):
+            if key not in batch:
+                raise ValueError(f"batch is missing {key!r}")
+        images = torch.stack(
+            [self._images(batch["static_rgb"], "batch['static_rgb']"), self._images(batch["wrist_rgb"], "batch['wrist_rgb']")],
+            dim=1,
+        )
+        ids = self._vl_instruction_ids(list(batch["instruction"]), "batch['instruction']")
+        answers = list(batch["answer"])
+        if len(answers) != len(ids) or not all(isinstance(a, str) and a for a in answers):
+            raise ValueError("batch['answer'] must be one non-empty str per sample")
+        loss = self.vision_language.lm_loss(images, ids, answers)
+        return loss, {"vlm_loss": float(loss.detach())}

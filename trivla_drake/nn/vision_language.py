@@ -1,0 +1,188 @@
+"""System 2, the vision-language module: Eagle-2's design on transformers' SigLIP and Llama classes.
+
+Each 224x224 view -> SigLIP (16x16 patch tokens) -> pixel shuffle 0.5 (8x8 tokens, 4x channels) ->
+LayerNorm-Linear-GELU-Linear projector = 64 tokens per frame at LLM width. The views are spliced into a
+chat prompt with the tokenised instruction and run through the Llama LLM; Q_vl are the hidden states
+output by decoder layer `select_layer` (the paper's 12th), and the layers above it never run.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from trivla_drake.nn import pretrained
+from trivla_drake.nn.chat_prompt import ChatPrompt, build_chat_prompt
+from trivla_drake.nn.config import VisionLanguageConfig
+from trivla_drake.nn.early_exit import run_until
+from trivla_drake.nn.pixel_shuffle import pixel_shuffle
+from trivla_drake.nn.tokenizer import TextTokenizer
+
+IGNORE_INDEX = -100  # label of positions the LM loss skips (prompt and image tokens)
+
+
+def images_to_siglip_input(images: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """uint8 (N, H, W, 3) RGB -> float (N, 3, H, W) scaled to [-1, 1] (SigLIP's mean = std = 0.5)."""
+    x = images.permute(0, 3, 1, 2).to(dtype) / 255.0
+    return (x - 0.5) / 0.5
+
+
+class VisionLanguageModule(nn.Module):
+    """System 2: SigLIP + pixel shuffle + MLP projector + Llama LLM read out at a middle layer (Q_vl)."""
+
+    def __init__(
+        self,
+        config: VisionLanguageConfig,
+        tokenizer: TextTokenizer,
+        vision_encoder: nn.Module,
+        projector: nn.Sequential,
+        llm: nn.Module,
+        pixel_shuffle_ratio: float,
+    ) -> None:
+        super().__init__()
+        self.config = config
+        self.tokenizer = tokenizer
+        self.vision_encoder = vision_encoder
+        self.projector = projector
+        self.llm = llm
+        self.pixel_shuffle_ratio = pixel_shuffle_ratio
+        vcfg = vision_encoder.config
+        self.image_size = vcfg.image_size
+        grid = vcfg.image_size // vcfg.patch_size
+        self.num_image_tokens = grid * grid // round(1 / pixel_shuffle_ratio) ** 2
+        num_layers = len(llm.model.layers)
+        if not 1 <= config.select_layer <= num_layers:
+            raise ValueError(
+                f"vision_language.select_layer ({config.select_layer}) exceeds the LLM's {num_layers} layers"
+            )
+        if tokenizer.vocab_size > llm.config.vocab_size:
+            raise ValueError(
+                f"the tokenizer has {tokenizer.vocab_size} ids but the LLM vocabulary only "
+                f"{llm.config.vocab_size} (vision_language.llm.vocab_size)"
+            )
+
+    @classmethod
+    def from_config(
+        cls,
+        config: VisionLanguageConfig,
+        tokenizer: TextTokenizer,
+        *,
+        component_configs: dict | None = None,
+        load_pretrained: bool = True,
+    ) -> "VisionLanguageModule":
+        """Builds the module: from recorded component configs (a checkpoint), from local pretrained
+        directories named in `config` (when load_pretrained), or randomly initialised from its shapes."""
+        ratio = config.pixel_shuffle_ratio
+        layers = config.select_layer if config.drop_unused_llm_layers else None
+        if component_configs is not None:
+            vision = pretrained.build_siglip_vision(component_configs["vision"])
+            llm = pretrained.build_llama(component_configs["llm"])
+            ratio = component_configs.get("pixel_shuffle_ratio", ratio)
+            projector = pretrained.eagle_projector(vision.config.hidden_size, llm.config.hidden_size, ratio)
+        elif load_pretrained and config.eagle2_path:
+            parts = pretrained.load_eagle2(config.eagle2_path, num_hidden_layers=layers)
+            vision, projector, llm, ratio = parts.vision_encoder, parts.projector, parts.llm, parts.pixel_shuffle_ratio
+        else:
+            if load_pretrained and config.siglip_path:
+                vision = pretrained.load_siglip_vision(config.siglip_path)
+            else:
+                vision = pretrained.build_siglip_vision(pretrained.siglip_vision_config(config.vision))
+            if load_pretrained and config.llm_path:
+                llm = pretrained.load_llama(config.llm_path, num_hidden_layers=layers)
+            else:
+                llm = pretrained.build_llama(
+                    pretrained.llama_config(config.llm, num_hidden_layers=layers, pad_token_id=tokenizer.pad_token_id)
+                )
+            projector = pretrained.eagle_projector(vision.config.hidden_size, llm.config.hidden_size, ratio)
+        return cls(config, tokenizer, vision, projector, llm, ratio)
+
+    def component_configs(self) -> dict:
+        """Library configs of the parts, enough to rebuild this architecture without the original files."""
+        return {
+            "vision": pretrained.component_config_dict(self.vision_encoder),
+            "llm": pretrained.component_config_dict(self.llm),
+            "pixel_shuffle_ratio": self.pixel_shuffle_ratio,
+        }
+
+    @property
+    def hidden_size(self) -> int:
+        """Width of Q_vl (the LLM's hidden size)."""
+        return self.llm.config.hidden_size
+
+    @property
+    def readout_layer(self) -> nn.Module:
+        """The LLM decoder layer whose output is Q_vl."""
+        return self.llm.model.layers[self.config.select_layer - 1]
+
+    def encode_images(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 (N, H, W, 3) frames -> (N, num_image_tokens, hidden) projected image tokens."""
+        dtype = self.projector[1].weight.dtype
+        pixels = images_to_siglip_input(images.to(self.projector[1].weight.device), dtype)
+        patches = self.vision_encoder(pixel_values=pixels).last_hidden_state  # (N, G*G, Cv)
+        return self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
+
+    def build_prompts(
+        self, instruction_ids: list[list[int]], num_images: int, answers: list[str] | None = None
+    ) -> list[ChatPrompt]:
+        """Chat prompts for already-tokenised instructions (and answers, for the LM loss)."""
+        return [
+            build_chat_prompt(self.tokenizer, ids, num_images, None if answers is None else answers[i])
+            for i, ids in enumerate(instruction_ids)
+        ]
+
+    def assemble(
+        self, image_tokens: torch.Tensor, prompts: list[ChatPrompt], *, with_answers: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Splices image tokens (B, V, n, D) into the embedded prompts; right-pads the batch.
+        Returns input embeddings (B, S, D), attention mask (B, S) and LM labels (B, S)."""
+        batch, views, n, _ = image_tokens.shape
+        lengths = [
+            sum(len(p) for p in prompt.text_pieces) + views * n + (len(prompt.answer_ids) if with_answers else 0)
+            for prompt in prompts
+        ]
+        seq = max(lengths)
+        device = image_tokens.device
+        ids = torch.full((batch, seq), self.tokenizer.pad_token_id, dtype=torch.long)
+        labels = torch.full((batch, seq), IGNORE_INDEX, dtype=torch.long)
+        mask = torch.zeros(batch, seq, dtype=torch.bool)
+        is_image = torch.zeros(batch, seq, dtype=torch.bool)
+        for b, prompt in enumerate(prompts):
+            if prompt.num_images != views:
+                raise ValueError(f"prompt {b} has {prompt.num_images} image slots for {views} views")
+            pos = 0
+            for i, piece in enumerate(prompt.text_pieces):
+                ids[b, pos : pos + len(piece)] = torch.tensor(piece, dtype=torch.long)
+                pos += len(piece)
+                if i < views:
+                    is_image[b, pos : pos + n] = True
+                    pos += n
+            if with_answers and prompt.answer_ids:
+                answer = torch.tensor(prompt.answer_ids, dtype=torch.long)
+                ids[b, pos : pos + len(answer)] = answer
+                labels[b, pos : pos + len(answer)] = answer
+                pos += len(answer)
+            mask[b, :pos] = True
+        ids, labels, mask, is_image = (t.to(device) for t in (ids, labels, mask, is_image))
+        embeds = self.llm.get_input_embeddings()(ids)
+        embeds = embeds.masked_scatter(is_image.unsqueeze(-1), image_tokens.reshape(-1, image_tokens.shape[-1]))
+        return embeds, mask, labels
+
+    def forward(self, images: torch.Tensor, instruction_ids: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
+        """images: uint8 (B, V, H, W, 3); instruction_ids: B token lists.
+        Returns Q_vl (B, S, hidden), the output of LLM layer `select_layer`, and its mask (B, S)."""
+        batch, views = images.shape[:2]
+        tokens = self.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
+        embeds, mask, _ = self.assemble(tokens, self.build_prompts(instruction_ids, views))
+        layer = self.readout_layer
+        (q_vl,) = run_until(
+            lambda: self.llm.model(inputs_embeds=embeds, attention_mask=mask.long()), [layer], layer
+        )
+        return q_vl, mask
+
+    def lm_loss(self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str]) -> torch.Tensor:
+        """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining)."""
+        batch, views = images.shape[:2]
+        tokens = self.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
+        prompts = self.build_prompts(instruction_ids, views, answers)
+        embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)
+        return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss
