@@ -59,7 +59,9 @@ def _random_configurations(kinematics, count, seed):
 def test_reduced_model_has_the_seven_arm_joints_and_their_urdf_limits(kinematics):
     assert kinematics.nq == 7
     assert kinematics.joint_names == ARM_JOINTS
-    np.testing.assert_allclose(kinematics.q_lower, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+    np.testing.assert_allclose(
+        kinematics.q_lower, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973]
+    )
     np.testing.assert_allclose(kinematics.q_upper, [2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
     np.testing.assert_allclose(kinematics.v_max, [2.175] * 4 + [2.61] * 3)
 

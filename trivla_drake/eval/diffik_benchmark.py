@@ -53,35 +53,65 @@ def _drake_arm(params: DiffIKParams):
     return plant, plant.CreateDefaultContext(), plant.GetFrameByName(EE_FRAME), drake_params
 
 
+def _random_problems(kinematics: PandaKinematics, rng, count: int) -> list:
+    """Random q inside the limits, each with a reachable target a few centimetres away."""
+    span = kinematics.q_upper - kinematics.q_lower
+    problems = []
+    for _ in range(count):
+        q = kinematics.q_lower + span * rng.uniform(0.1, 0.9, size=7)
+        nearby = np.clip(q + rng.normal(scale=0.05, size=7), kinematics.q_lower, kinematics.q_upper)
+        problems.append((q, kinematics.ee_pose(nearby)))
+    return problems
+
+
+def _tracking_problems(kinematics: PandaKinematics, params: DiffIKParams, count: int) -> list:
+    """The controller's real workload: consecutive ticks following a moving target (a 10 cm circle)."""
+    solver = OsqpDifferentialIK(kinematics, params)
+    q = np.asarray(params.q_nominal, dtype=float)
+    start = kinematics.ee_pose(q)
+    problems = []
+    for tick in range(count):
+        angle = 2 * np.pi * tick * params.dt / 4.0
+        target = start.copy()
+        target[:3, 3] += 0.1 * np.array([np.cos(angle) - 1.0, np.sin(angle), 0.0])
+        problems.append((q.copy(), target))
+        q = solver.solve(q, target).q_next
+    return problems
+
+
+def _median_us(solve, problems) -> float:
+    times = []
+    for q, target in problems:
+        start = time.perf_counter()
+        solve(q, target)
+        times.append(time.perf_counter() - start)
+    return 1e6 * float(np.median(times))
+
+
 def benchmark_diffik(num_problems: int = 2000, seed: int = 0) -> dict:
-    """Median per-tick time [us] of both solvers over the same random (q, reachable target) pairs."""
-    rng = np.random.default_rng(seed)
+    """Median per-tick time [us] of both solvers (kinematics + QP) on the same problems.
+
+    Two problem sets: closed-loop tracking ticks (what the controller does every 10 ms) and random
+    configurations with nearby targets (where joint-velocity bounds are often active).
+    """
     params = DiffIKParams()
     kinematics = PandaKinematics()
     ours = OsqpDifferentialIK(kinematics, params)
     plant, context, frame, drake_params = _drake_arm(params)
-    span = kinematics.q_upper - kinematics.q_lower
-    problems = []
-    for _ in range(num_problems):
-        q = kinematics.q_lower + span * rng.uniform(0.1, 0.9, size=7)
-        nearby = np.clip(q + rng.normal(scale=0.05, size=7), kinematics.q_lower, kinematics.q_upper)
-        problems.append((q, kinematics.ee_pose(nearby)))
 
-    our_times, drake_times = [], []
-    for q, target in problems:
-        start = time.perf_counter()
-        ours.solve(q, target)
-        our_times.append(time.perf_counter() - start)
-    for q, target in problems:
-        start = time.perf_counter()
+    def drake_solve(q, target):
         plant.SetPositions(context, q)
         DoDifferentialInverseKinematics(plant, context, RigidTransform(target), frame, drake_params)
-        drake_times.append(time.perf_counter() - start)
-    ours_us = 1e6 * float(np.median(our_times))
-    drake_us = 1e6 * float(np.median(drake_times))
-    return {
-        "diffik_median_us": ours_us,
-        "drake_diffik_median_us": drake_us,
-        "diffik_speedup_vs_drake": drake_us / ours_us,
-        "diffik_problems": num_problems,
+
+    result = {"diffik_problems": num_problems}
+    problem_sets = {
+        "": _tracking_problems(kinematics, params, num_problems),
+        "random_": _random_problems(kinematics, np.random.default_rng(seed), num_problems),
     }
+    for prefix, problems in problem_sets.items():
+        ours_us = _median_us(ours.solve, problems)
+        drake_us = _median_us(drake_solve, problems)
+        result[f"diffik_{prefix}median_us"] = ours_us
+        result[f"drake_diffik_{prefix}median_us"] = drake_us
+        result[f"diffik_{prefix}time_ratio_to_drake"] = ours_us / drake_us
+    return result

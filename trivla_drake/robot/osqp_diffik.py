@@ -9,7 +9,12 @@ V_des = gain * pose_error / dt with each part capped at a maximum speed; W weigh
 translation; v_posture = posture_gain * (q_nominal - q) / dt; N = n n^T projects onto J's null space
 (n its unit null vector), so the posture term cannot fight the task and leaves no steady-state pose
 error; mu is a Levenberg-Marquardt damping that grows as J's smallest singular value falls below a
-threshold; s, g, m are velocity_scale, position_limit_gain, position_margin. q_next = q + dt v.
+threshold (where the posture term fades out); s, g, m are velocity_scale, position_limit_gain and
+position_margin. q_next = q + dt v.
+
+The constraints are a box, so when the unconstrained minimiser (one Cholesky solve) lies inside it,
+it is the QP's optimum and OSQP is skipped; OSQP, set up once and warm-started, handles the ticks
+where a bound binds.
 """
 
 from __future__ import annotations
@@ -60,9 +65,11 @@ class DiffIKParams:
     damping: float = 1e-6
     # Extra damping reached when J's smallest singular value is zero [units of J^T J].
     singular_damping: float = 2.5e-3
-    # Smallest singular value of J below which the extra damping ramps in [-].
+    # Smallest singular value of J below which the extra damping ramps in and the posture term
+    # fades out, both quadratically in the singular value [units of J].
     singular_threshold: float = 0.05
-    # OSQP absolute and relative tolerances; 1e-6 keeps the steady-state pose error below 1e-6 m.
+    # OSQP absolute and relative tolerances, for ticks where a bound binds; the velocity is then
+    # accurate to about eps over P's smallest eigenvalue (ticks with no bound active are exact).
     eps_abs: float = 1e-6
     eps_rel: float = 1e-6
     # OSQP iteration cap; a tick that hits it holds position instead of moving.
@@ -114,10 +121,11 @@ def _clip_norm(x: np.ndarray, max_norm: float) -> None:
 
 
 class OsqpDifferentialIK:
-    """Joint-velocity differential IK: one warm-started OSQP solve per `solve(q, target_pose)` call.
+    """Joint-velocity differential IK: one small QP per `solve(q, target_pose)` call (module docstring).
 
-    The QP's sparsity is fixed in __init__ (dense upper-triangular P, identity A), so each tick only
-    rewrites P's values and the vectors q, l, u. Not thread-safe: it owns solver and kinematics state.
+    The OSQP problem's sparsity is fixed in __init__ (dense upper-triangular P, identity A), so a
+    tick only rewrites P's values and the vectors q, l, u. Not thread-safe: it owns solver and
+    kinematics state.
     """
 
     def __init__(self, kinematics: PandaKinematics, params: DiffIKParams | None = None) -> None:
@@ -137,8 +145,8 @@ class OsqpDifferentialIK:
 
         # The cost is |rows v - rhs|^2 + mu |v|^2, i.e. P = rows^T rows + mu I and q = -rows^T rhs;
         # these buffers are rewritten every tick. rhs is stored negated so that q is one product.
-        self._rows = np.empty((7, n))  # [sqrt(W) J; null^T]
-        self._neg_rhs = np.empty(7)  # -[sqrt(W) V_des; null . v_posture]
+        self._rows = np.empty((6 + 1, n))  # [sqrt(W) J; null^T]: six task rows, one posture row
+        self._neg_rhs = np.empty(6 + 1)  # -[sqrt(W) V_des; null . v_posture]
         self._hessian = np.empty((n, n))
         self._hessian_diagonal = self._hessian.reshape(-1)[:: n + 1]  # a view
         self._gradient = np.empty(n)
@@ -188,8 +196,8 @@ class OsqpDifferentialIK:
 
         # The last right singular vector spans J's null space (J is 6x7), and |N x|^2 = (null . x)^2,
         # so the projected posture term is one more least-squares row. Below the singular threshold
-        # the damping ramps in, and the posture row fades out: there the two smallest singular
-        # directions trade places from tick to tick, and posture motion along either makes the arm chatter.
+        # the damping ramps in and the posture row fades out: there the two smallest singular
+        # directions trade places from tick to tick, and posture motion along either one chatters.
         _, singular_values, vt, info = dgesvd(jacobian)
         if info != 0:
             return self._hold(q, error)
@@ -217,7 +225,9 @@ class OsqpDifferentialIK:
         if info == 0 and (bounds[0] <= v).all() and (v <= bounds[1]).all():
             return DiffIKResult(q + p.dt * v, v, DiffIKStatus.SOLVED, error)
 
-        self._solver.update(Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1])
+        self._solver.update(
+            Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1]
+        )
         result = self._solver.solve(raise_error=False)
 
         status_val = result.info.status_val
@@ -250,10 +260,13 @@ def _check_target_pose(target_pose: np.ndarray) -> np.ndarray:
     rotation = target_pose[:3, :3]
     deviation = rotation.T @ rotation - _IDENTITY3
     (a, b, c), (d, e, f), (g, h, i) = rotation.tolist()
-    determinant = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)  # np.linalg.det is slower
+    # Written out because np.linalg.det costs more than the whole rest of this check.
+    determinant = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     # 1e-10 on the squared deviation admits rotations that went through float32 (about 1e-7 off).
     if (deviation * deviation).sum() > 1e-10 or determinant < 0.0:
-        raise ValueError(f"target_pose[:3, :3] must be a rotation matrix (orthonormal, det +1), got {rotation}")
+        raise ValueError(
+            f"target_pose[:3, :3] must be a rotation matrix (orthonormal, det +1), got {rotation.tolist()}"
+        )
     return target_pose
 
 
@@ -265,11 +278,13 @@ def _check_params(params: DiffIKParams, q_nominal: np.ndarray, kinematics: Panda
         value = getattr(params, name)
         if not 0.0 < value <= 1.0:
             raise ValueError(f"{name} must be in (0, 1], got {value}")
-    for name in ("dt", "max_linear_speed", "max_angular_speed", "angular_weight", "singular_threshold"):
+    for name in (
+        "dt", "max_linear_speed", "max_angular_speed", "angular_weight", "singular_threshold", "max_iter"
+    ):
         value = getattr(params, name)
         if not value > 0.0:
             raise ValueError(f"{name} must be positive, got {value}")
-    for name in ("posture_gain", "position_margin", "damping", "singular_damping"):
+    for name in ("posture_gain", "position_margin", "damping", "singular_damping", "eps_abs", "eps_rel"):
         value = getattr(params, name)
         if not value >= 0.0:
             raise ValueError(f"{name} must be non-negative, got {value}")

@@ -27,7 +27,9 @@ class PandaKinematics:
         full = pin.buildModelFromUrdf(str(urdf_path or original_panda_urdf()))
         missing = [name for name in arm_joints if not full.existJointName(name)]
         if missing:
-            raise ValueError(f"arm_joints {missing} are not joints of the URDF; it has {list(full.names)[1:]}")
+            raise ValueError(
+                f"arm_joints {missing} are not in the URDF, whose joints are {list(full.names)[1:]}"
+            )
         # Every joint that is not an arm joint (the fingers) is locked at the neutral configuration;
         # the fingers do not move the hand's tool-centre point, so the locked value does not matter.
         locked = [full.getJointId(name) for name in full.names[1:] if name not in arm_joints]
@@ -49,7 +51,7 @@ class PandaKinematics:
         return self.model.nq
 
     def check_configuration(self, q: np.ndarray) -> np.ndarray:
-        """Return `q` as a float array of shape (nq,); ValueError naming `q` if it is not one or not finite."""
+        """`q` as a float array of shape (nq,); ValueError naming `q` if it has another shape or NaN/inf."""
         q = np.asarray(q, dtype=float)
         if q.shape != (self.nq,):
             raise ValueError(f"q must have shape ({self.nq},), got {q.shape}")
@@ -58,7 +60,7 @@ class PandaKinematics:
         return q
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """End-effector pose (4x4) and its 6xnq Jacobian from one kinematics pass; see the two methods below."""
+        """End-effector pose (4x4) and 6xnq Jacobian from one kinematics pass; see the methods below."""
         q = self.check_configuration(q)
         # computeJointJacobians runs the forward kinematics (data.oMi) the Jacobian needs; the frame
         # placement is then refreshed explicitly, since no Jacobian routine updates data.oMf.
