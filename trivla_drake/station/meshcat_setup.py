@@ -14,7 +14,10 @@ def make_meshcat(port: int | None = None) -> Meshcat:
     params = MeshcatParams(host="localhost")
     if port is not None:
         params.port = port
-    return Meshcat(params)
+    meshcat = Meshcat(params)
+    # Start looking at the table from the front-left, not from Meshcat's far default.
+    meshcat.SetCameraPose(camera_in_world=[1.5, 1.0, 0.9], target_in_world=[0.4, 0.0, 0.1])
+    return meshcat
 
 
 def save_static_html(meshcat: Meshcat, path: str | os.PathLike) -> Path:
@@ -26,6 +29,7 @@ def save_static_html(meshcat: Meshcat, path: str | os.PathLike) -> Path:
     try:
         with os.fdopen(fd, "w") as stream:
             stream.write(html)
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would hide the page from a web server
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
