@@ -152,9 +152,9 @@ class PolicyConfig:
     action_dim: int = 7
     action_horizon: int = 10  # action chunk length
     num_embodiments: int = 32  # embodiment-specific state encoder / action encoder / decoder slots
-    hidden_size: int = 1536  # DiT width
+    hidden_size: int = 1024  # DiT width (GR00T N1 action head: 1024)
     num_layers: int = 16
-    num_heads: int = 32
+    num_heads: int = 16
     mlp_ratio: float = 4.0
     former_dim: int = 384  # Video Former (VPP: width 384, depth 6, 8 heads)
     former_depth: int = 6

@@ -11,6 +11,7 @@ import torch
 from torch import nn
 
 EPS = 1e-8
+_FIELDS = ("state_mean", "state_std", "action_min", "action_max")
 
 
 @dataclass
@@ -44,7 +45,7 @@ class NormalizationStats:
     def from_dict(cls, data: dict[str, Any]) -> "NormalizationStats":
         """Inverse of `to_dict`; raises ValueError on missing or non-finite entries."""
         try:
-            stats = cls(**{k: [float(v) for v in data[k]] for k in ("state_mean", "state_std", "action_min", "action_max")})
+            stats = cls(**{k: [float(v) for v in data[k]] for k in _FIELDS})
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"normalization statistics are malformed: {exc}") from exc
         for name, values in asdict(stats).items():
@@ -54,7 +55,8 @@ class NormalizationStats:
 
     def check_dims(self, state_dim: int, action_dim: int) -> None:
         """Raises ValueError naming the field whose length is wrong."""
-        for name, n in (("state_mean", state_dim), ("state_std", state_dim), ("action_min", action_dim), ("action_max", action_dim)):
+        for name in _FIELDS:
+            n = state_dim if name.startswith("state") else action_dim
             if len(getattr(self, name)) != n:
                 raise ValueError(f"normalization.{name} has {len(getattr(self, name))} values; expected {n}")
 

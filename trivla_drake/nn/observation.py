@@ -21,7 +21,9 @@ def check_image(name: str, image: Any, size: int) -> np.ndarray:
     if image is None:
         raise ValueError(f"{name} is missing: give a uint8 ({size}, {size}, 3) RGB image")
     if not isinstance(image, np.ndarray):
-        raise ValueError(f"{name} must be a numpy array of dtype uint8, shape ({size}, {size}, 3); got {type(image).__name__}")
+        raise ValueError(
+            f"{name} must be a numpy array of dtype uint8, shape ({size}, {size}, 3); got {type(image).__name__}"
+        )
     if image.dtype != np.uint8:
         raise ValueError(f"{name} must have dtype uint8 (0-255 RGB); got {image.dtype}")
     if image.shape != (size, size, 3):
@@ -59,10 +61,14 @@ def check_embodiment_id(name: str, embodiment_id: Any, num_embodiments: int) -> 
 def check_observation(observation: Any, *, image_size: int, state_dim: int, num_embodiments: int) -> dict[str, Any]:
     """Validated copy of an observation dict (instruction text is checked by the tokenizers later)."""
     if not isinstance(observation, Mapping):
-        raise ValueError(f"observation must be a dict with keys {list(REQUIRED_KEYS)}; got {type(observation).__name__}")
+        raise ValueError(
+            f"observation must be a dict with keys {list(REQUIRED_KEYS)}; got {type(observation).__name__}"
+        )
     missing = [k for k in REQUIRED_KEYS if k not in observation]
     if missing:
-        raise ValueError(f"observation is missing {missing}; required keys: {list(REQUIRED_KEYS)} (+ optional 'embodiment_id')")
+        raise ValueError(
+            f"observation is missing {missing}; required keys: {list(REQUIRED_KEYS)} (+ optional 'embodiment_id')"
+        )
     return {
         "static_rgb": check_image("observation['static_rgb']", observation["static_rgb"], image_size),
         "wrist_rgb": check_image("observation['wrist_rgb']", observation["wrist_rgb"], image_size),

@@ -4,6 +4,7 @@ pretrained directories with `from_pretrained` (never downloading: `local_files_o
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 from dataclasses import dataclass
@@ -185,6 +186,11 @@ def _require_dir(path: str, what: str) -> None:
         raise ValueError(f"{what} path {path!r} is not a directory (pretrained weights are never downloaded)")
 
 
+def _diffusers_load_kwargs() -> dict[str, Any]:
+    # diffusers' low-memory loading needs `accelerate`; without it, ask for plain loading (no warning).
+    return {"local_files_only": True, "low_cpu_mem_usage": importlib.util.find_spec("accelerate") is not None}
+
+
 def _subfolder(path: str, name: str) -> str:
     """`path/name` when it exists (the layout of the released SVD repo), else `path`."""
     sub = os.path.join(path, name)
@@ -196,7 +202,8 @@ def load_siglip_vision(path: str) -> nn.Module:
     from transformers import SiglipVisionModel
 
     _require_dir(path, "SigLIP")
-    return SiglipVisionModel.from_pretrained(path, local_files_only=True)
+    # Eagle-2 reads the patch tokens; the attention-pooling head would be dead weight.
+    return SiglipVisionModel.from_pretrained(path, local_files_only=True, vision_use_head=False)
 
 
 def load_llama(path: str, *, num_hidden_layers: int | None = None) -> nn.Module:
@@ -221,7 +228,7 @@ def load_svd_unet(path: str) -> nn.Module:
     from diffusers import UNetSpatioTemporalConditionModel
 
     _require_dir(path, "SVD UNet")
-    return UNetSpatioTemporalConditionModel.from_pretrained(_subfolder(path, "unet"), local_files_only=True)
+    return UNetSpatioTemporalConditionModel.from_pretrained(_subfolder(path, "unet"), **_diffusers_load_kwargs())
 
 
 def load_svd_vae(path: str) -> nn.Module:
@@ -229,7 +236,7 @@ def load_svd_vae(path: str) -> nn.Module:
     from diffusers import AutoencoderKLTemporalDecoder
 
     _require_dir(path, "SVD VAE")
-    return AutoencoderKLTemporalDecoder.from_pretrained(_subfolder(path, "vae"), local_files_only=True)
+    return AutoencoderKLTemporalDecoder.from_pretrained(_subfolder(path, "vae"), **_diffusers_load_kwargs())
 
 
 @dataclass
@@ -254,6 +261,15 @@ def _read_safetensors_dir(path: str) -> dict[str, torch.Tensor]:
     return state
 
 
+def _strip_legacy_prefix(state: dict[str, torch.Tensor], module: nn.Module, prefix: str) -> dict[str, torch.Tensor]:
+    """Drops `prefix` from keys when `module` does not use it (transformers 4.x nested SigLIP as
+    `vision_model.*`; 5.x keeps its parts at the top level)."""
+    expected = set(module.state_dict())
+    if any(k in expected for k in state) or not all(k.startswith(prefix) for k in state):
+        return state
+    return {k[len(prefix) :]: v for k, v in state.items()}
+
+
 def load_eagle2(path: str, *, num_hidden_layers: int | None = None) -> Eagle2Parts:
     """Eagle-2 (SigLIP + MLP projector + Llama-family LLM) from a local directory holding its config.json
     (`vision_config`, `llm_config`, `downsample_ratio`) and safetensors with the keys `vision_model.*`,
@@ -266,6 +282,11 @@ def load_eagle2(path: str, *, num_hidden_layers: int | None = None) -> Eagle2Par
     for key in ("vision_config", "llm_config"):
         if key not in meta:
             raise ValueError(f"Eagle-2 config {path}/config.json has no {key!r}")
+    llm_type = meta["llm_config"].get("model_type", "llama")
+    if llm_type != "llama":
+        raise ValueError(
+            f"Eagle-2 checkpoint {path!r} has a {llm_type!r} LLM; only Llama-family (SmolLM2) LLMs are supported"
+        )
     if meta.get("select_layer", -1) != -1:
         raise ValueError("only Eagle-2 checkpoints that read the last SigLIP layer (select_layer -1) are supported")
     vision_cfg = SiglipVisionConfig.from_dict({**meta["vision_config"], "vision_use_head": False})
@@ -287,8 +308,9 @@ def load_eagle2(path: str, *, num_hidden_layers: int | None = None) -> Eagle2Par
                 bucket[key[len(prefix) :]] = value
     keep = set(llm.state_dict())
     llm_state = {k: v for k, v in parts["language_model."].items() if k in keep}
+    vision_state = _strip_legacy_prefix(parts["vision_model."], vision, "vision_model.")
     for module, sub, what in (
-        (vision, parts["vision_model."], "vision_model"),
+        (vision, vision_state, "vision_model"),
         (projector, parts["mlp1."], "mlp1"),
     ):
         result = module.load_state_dict(sub, strict=False)

@@ -66,13 +66,16 @@ class TriVLA(nn.Module):
         self.config = config
         tokenizers = tokenizers or {}
         components = component_configs or {}
-        with torch.random.fork_rng(devices=[]):
+        cuda_devices = list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
+        with torch.random.fork_rng(devices=cuda_devices):  # seeded initialisation, global RNGs restored
             torch.manual_seed(config.init_seed)
             self.vision_language: VisionLanguageModule | None = None
             self.dynamics: DynamicsPerceptionModule | None = None
             if config.use_system2:
                 vl = config.vision_language
-                tok = tokenizers.get("vision_language") or load_tokenizer(vl.tokenizer_path if load_pretrained else None)
+                tok = tokenizers.get("vision_language") or load_tokenizer(
+                    vl.tokenizer_path if load_pretrained else None
+                )
                 self.vision_language = VisionLanguageModule.from_config(
                     vl, tok, component_configs=components.get("vision_language"), load_pretrained=load_pretrained
                 )
@@ -289,7 +292,8 @@ class TriVLA(nn.Module):
     def _as_tensor(self, value: Any, name: str, shape: tuple[int | None, ...]) -> torch.Tensor:
         t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not torch.is_tensor(value) else value)
         if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
-            raise ValueError(f"{name} must have shape {tuple('any' if s is None else s for s in shape)}; got {tuple(t.shape)}")
+            wanted = tuple("any" if s is None else s for s in shape)
+            raise ValueError(f"{name} must have shape {wanted}; got {tuple(t.shape)}")
         if not torch.isfinite(t).all():
             raise ValueError(f"{name} has NaN or infinite entries")
         return t.to(self.device, torch.float32)
@@ -361,7 +365,9 @@ class TriVLA(nn.Module):
 
     # ------------------------------------------------------------------ training losses
 
-    def _batch_tensor(self, batch: Mapping[str, Any], key: str, dtype: torch.dtype | None = torch.float32) -> torch.Tensor:
+    def _batch_tensor(
+        self, batch: Mapping[str, Any], key: str, dtype: torch.dtype | None = torch.float32
+    ) -> torch.Tensor:
         if key not in batch:
             raise ValueError(f"batch is missing {key!r}")
         t = torch.as_tensor(batch[key])
@@ -426,7 +432,13 @@ class TriVLA(nn.Module):
         q_s = self.policy.encode_state(self.normalizer.normalize_state(state), eid)
         memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, b)
         loss, t = self.policy.loss(
-            self.normalizer.normalize_action(actions), q_s, memory, mask, eid, action_mask=action_mask, generator=generator
+            self.normalizer.normalize_action(actions),
+            q_s,
+            memory,
+            mask,
+            eid,
+            action_mask=action_mask,
+            generator=generator,
         )
         return loss, {"loss": float(loss.detach()), "flow_time_mean": float(t.mean())}
 
@@ -454,7 +466,10 @@ class TriVLA(nn.Module):
             if key not in batch:
                 raise ValueError(f"batch is missing {key!r}")
         images = torch.stack(
-            [self._images(batch["static_rgb"], "batch['static_rgb']"), self._images(batch["wrist_rgb"], "batch['wrist_rgb']")],
+            [
+                self._images(batch["static_rgb"], "batch['static_rgb']"),
+                self._images(batch["wrist_rgb"], "batch['wrist_rgb']"),
+            ],
             dim=1,
         )
         ids = self._vl_instruction_ids(list(batch["instruction"]), "batch['instruction']")

@@ -56,6 +56,7 @@ class VideoFormer(nn.Module):
         self.num_frames = num_frames
         self.num_views = num_views
         self.feature_channels = feature_channels
+        self.feature_size = feature_size
         self.input_norm = nn.LayerNorm(feature_channels)
         self.input_proj = nn.Linear(feature_channels, dim)
         self.spatial_pos = nn.Parameter(torch.randn(feature_size * feature_size, dim) * 0.02)
@@ -77,11 +78,11 @@ class VideoFormer(nn.Module):
         """views: one F_p (B, T, C, H_p, W_p) per camera (static, wrist) -> Q_p (B, T*L, D)."""
         if len(views) != self.num_views:
             raise ValueError(f"the Video Former takes {self.num_views} views; got {len(views)}")
+        expected = (self.num_frames, self.feature_channels, self.feature_size, self.feature_size)
         for features in views:
-            if features.shape[1] != self.num_frames or features.shape[2] != self.feature_channels:
+            if features.dim() != 5 or tuple(features.shape[1:]) != expected:
                 raise ValueError(
-                    f"dynamics features must be (B, {self.num_frames}, {self.feature_channels}, H_p, W_p); "
-                    f"got {tuple(features.shape)}"
+                    f"dynamics features must be (B, {', '.join(map(str, expected))}); got {tuple(features.shape)}"
                 )
         frame_tokens = self.tokens(views)
         q = self.queries.unsqueeze(0).expand(frame_tokens.shape[0], -1, -1, -1)

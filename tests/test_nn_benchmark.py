@@ -1,0 +1,38 @@
+"""benchmark_model / format_benchmark_table (figures are printed by the benchmark, not asserted)."""
+
+import pytest
+import torch
+
+from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
+
+
+def test_tiny_benchmark_reports_every_system_and_table4_row():
+    threads = torch.get_num_threads()
+    result = benchmark_model("tiny", repeats=1, seed=0, threads=1)
+    assert torch.get_num_threads() == threads  # restored
+    assert result["skipped"] is False and result["torch_threads"] == 1
+    assert set(result["params_millions"]) == {"system1", "system2", "system3", "total"}
+    assert set(result["latency_ms"]) == {"system1", "system2", "system3", "full"}
+    assert all(v > 0 for v in result["latency_ms"].values())
+    assert [row["systems"] for row in result["ablations"]] == ["1", "1+3", "1+2+3"]
+    params = [row["params_millions"] for row in result["ablations"]]
+    assert params[0] < params[1] < params[2] == result["params_millions"]["total"]
+    table = format_benchmark_table(result)
+    for text in ("System 2", "System 3", "System 1", "Full inference", "VL-M", "Hz"):
+        assert text in table
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a GPU is present: the paper preset would be timed")
+def test_paper_preset_is_skipped_without_cuda_and_never_built_on_cpu():
+    result = benchmark_model("paper")
+    assert result["skipped"] is True and "CUDA" in result["reason"]
+    # parameter counts come from a meta-device build: billions of parameters, no memory used
+    assert 3000 < result["params_millions"]["total"] < 5000
+    assert "Skipped" in format_benchmark_table(result)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="valid presets"):
+        benchmark_model("huge")
+    with pytest.raises(ValueError, match="repeats"):
+        benchmark_model("tiny", repeats=0)

@@ -1,0 +1,97 @@
+"""System 1: embodiment-specific layers, Video Former (eq. 4) shapes, the DiT, and the action head."""
+
+import pytest
+import torch
+
+from trivla_drake.nn.config import make_config
+from trivla_drake.nn.dit import DiffusionTransformer
+from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP, check_embodiment_ids
+from trivla_drake.nn.policy import FlowMatchingPolicy
+from trivla_drake.nn.video_former import VideoFormer
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    """Tiny models gain nothing from threads, and a busy shared CPU makes threaded ops stall; restored after."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def test_embodiment_weights_differ_and_only_the_used_slice_learns():
+    torch.manual_seed(0)
+    layer = EmbodimentMLP(3, 5, 16, 4)
+    x = torch.randn(1, 5)
+    outs = [layer(x, torch.tensor([e])) for e in range(3)]
+    assert not torch.allclose(outs[0], outs[1]) and not torch.allclose(outs[1], outs[2])
+    assert not torch.equal(layer.fc1.weight[0], layer.fc1.weight[1])
+    # a batch mixing embodiments uses each sample's own weights
+    mixed = layer(x.expand(3, 5), torch.tensor([0, 1, 2]))
+    torch.testing.assert_close(mixed, torch.cat(outs))
+    # gradients from embodiment 1 reach only slice 1
+    layer(torch.randn(4, 5), torch.tensor([1, 1, 1, 1])).sum().backward()
+    grad = layer.fc1.weight.grad
+    assert grad[1].abs().sum() > 0 and grad[0].abs().sum() == 0 and grad[2].abs().sum() == 0
+    single = EmbodimentLinear(2, 3, 2)
+    assert single(torch.randn(2, 7, 3), torch.tensor([0, 1])).shape == (2, 7, 2)
+
+
+def test_unknown_embodiment_ids_are_rejected():
+    with pytest.raises(ValueError, match="embodiment_id"):
+        check_embodiment_ids(torch.tensor([0, 2]), 2)
+    with pytest.raises(ValueError, match="embodiment_id"):
+        check_embodiment_ids(torch.tensor([-1]), 2)
+
+
+def test_video_former_shapes_eq4():
+    former = VideoFormer(
+        feature_channels=12, num_frames=3, feature_size=4, dim=16, depth=2, num_heads=2, queries_per_frame=5
+    )
+    static, wrist = torch.randn(2, 3, 12, 4, 4), torch.randn(2, 3, 12, 4, 4)
+    q_p = former([static, wrist])
+    assert q_p.shape == (2, 3 * 5, 16)
+    # each view matters
+    assert not torch.allclose(q_p, former([static, torch.randn_like(wrist)]))
+    with pytest.raises(ValueError, match="dynamics features"):
+        former([static, torch.randn(2, 4, 12, 4, 4)])
+
+
+def test_dit_starts_as_identity_blocks_and_respects_the_memory_mask():
+    torch.manual_seed(0)
+    dit = DiffusionTransformer(dim=16, depth=2, num_heads=2)
+    x, cond = torch.randn(2, 6, 16), torch.randn(2, 16)
+    memory = torch.randn(2, 4, 16)
+    mask = torch.tensor([[True, True, False, False]] * 2)
+    out = dit(x, cond, memory, mask)
+    assert out.shape == x.shape
+    # masked memory tokens have no influence
+    memory2 = memory.clone()
+    memory2[:, 2:] += 100.0
+    torch.testing.assert_close(out, dit(x, cond, memory2, mask))
+
+
+def test_action_head_overfits_a_fixed_chunk():
+    config = make_config("tiny").policy
+    torch.manual_seed(0)
+    policy = FlowMatchingPolicy(config, vl_dim=8, dynamics_feature_shape=None)
+    gen = torch.Generator().manual_seed(0)
+    actions = torch.rand(1, config.action_horizon, config.action_dim, generator=gen) * 2 - 1
+    q_vl = torch.randn(1, 3, 8, generator=gen)
+    eid = torch.tensor([1])
+    opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
+    for _ in range(200):
+        q_s = policy.encode_state(torch.zeros(1, config.state_dim), eid)
+        memory, mask = policy.memory(q_vl, None, None, 1)
+        loss, _ = policy.loss(actions.expand(16, -1, -1), q_s.expand(16, -1), memory.expand(16, -1, -1),
+                              mask.expand(16, -1), eid.expand(16), generator=gen)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        q_s = policy.encode_state(torch.zeros(1, config.state_dim), eid)
+        memory, mask = policy.memory(q_vl, None, None, 1)
+        sample = policy.sample(q_s.expand(8, -1), memory.expand(8, -1, -1), mask.expand(8, -1), eid.expand(8),
+                               generator=gen, num_steps=10)
+    error = (sample - actions).abs().mean().item()
+    assert error < 0.15, f"mean abs error {error:.3f} after overfitting one chunk"

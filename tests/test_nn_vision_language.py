@@ -1,0 +1,113 @@
+"""System 2: 64 image tokens per 224x224 frame, pixel shuffle layout, middle-layer read-out, LM loss."""
+
+import numpy as np
+import pytest
+import torch
+
+from trivla_drake.nn.config import make_config
+from trivla_drake.nn.pixel_shuffle import pixel_shuffle
+from trivla_drake.nn.trivla import TriVLA
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    """Tiny models gain nothing from threads, and a busy shared CPU makes threaded ops stall; restored after."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return TriVLA(make_config("tiny")).eval()
+
+
+def _frames(n, seed=0):
+    return torch.from_numpy(np.random.default_rng(seed).integers(0, 256, (n, 224, 224, 3), dtype=np.uint8))
+
+
+def test_pixel_shuffle_folds_2x2_blocks_in_row_major_order():
+    grid, channels = 4, 3
+    tokens = torch.arange(grid * grid * channels, dtype=torch.float32).reshape(1, grid * grid, channels)
+    out = pixel_shuffle(tokens, 0.5)
+    assert out.shape == (1, 4, 4 * channels)
+    as_grid = tokens.reshape(grid, grid, channels)
+    for i in range(2):
+        for j in range(2):
+            expected = torch.cat([as_grid[2 * i + r, 2 * j + c] for r in range(2) for c in range(2)])
+            assert torch.equal(out[0, i * 2 + j], expected)
+
+
+def test_64_image_tokens_per_224_frame(model):
+    vl = model.vision_language
+    assert vl.num_image_tokens == 64
+    with torch.no_grad():
+        tokens = vl.encode_images(_frames(3))
+    assert tokens.shape == (3, 64, vl.hidden_size)
+    for preset in ("cpu", "paper"):
+        vision = make_config(preset).vision_language.vision
+        assert (vision.image_size // vision.patch_size) ** 2 // 4 == 64
+
+
+def test_q_vl_is_the_chosen_llm_layer_and_later_layers_never_run(model):
+    vl = model.vision_language
+    k = vl.config.select_layer
+    assert k < len(vl.llm.model.layers)  # the tiny preset keeps a layer above the read-out
+    frames = _frames(2)[None]
+    ids = model._vl_instruction_ids(["stack the blocks"], "instruction")
+    calls = {i: 0 for i in range(len(vl.llm.model.layers))}
+    hooks = [
+        layer.register_forward_hook(lambda *a, i=i: calls.__setitem__(i, calls[i] + 1))
+        for i, layer in enumerate(vl.llm.model.layers)
+    ]
+    norm_calls = []
+    hooks.append(vl.llm.model.norm.register_forward_hook(lambda *a: norm_calls.append(1)))
+    try:
+        with torch.no_grad():
+            q_vl, mask = vl(frames, ids)
+    finally:
+        for h in hooks:
+            h.remove()
+    assert all(calls[i] == 1 for i in range(k)) and all(calls[i] == 0 for i in range(k, len(calls)))
+    assert not norm_calls
+    prompt_len = sum(len(p) for p in vl.build_prompts(ids, 2)[0].text_pieces) + 2 * 64
+    assert q_vl.shape == (1, prompt_len, vl.hidden_size) and mask.all()
+
+    # The same states as the full LLM's hidden_states[k] (transformers' own indexing: 0 = embeddings).
+    with torch.no_grad():
+        tokens = vl.encode_images(frames.flatten(0, 1)).unflatten(0, (1, 2))
+        embeds, attn, _ = vl.assemble(tokens, vl.build_prompts(ids, 2))
+        full = vl.llm.model(inputs_embeds=embeds, attention_mask=attn.long(), output_hidden_states=True)
+    torch.testing.assert_close(q_vl, full.hidden_states[k])
+    assert not torch.allclose(q_vl, full.hidden_states[-1])
+
+
+def test_batching_with_padding_matches_single_samples(model):
+    frames = _frames(4, seed=1).reshape(2, 2, 224, 224, 3)
+    texts = ["open the drawer", "push the blue block to the left side"]
+    with torch.no_grad():
+        q_batch, mask = model.vision_language(frames, model._vl_instruction_ids(texts, "instruction"))
+        for b, text in enumerate(texts):
+            q_one, _ = model.vision_language(frames[b : b + 1], model._vl_instruction_ids([text], "instruction"))
+            n = q_one.shape[1]
+            assert mask[b].sum() == n
+            torch.testing.assert_close(q_batch[b, :n], q_one[0], atol=1e-5, rtol=1e-4)
+
+
+def test_vlm_loss_trains_the_projector(model):
+    frames = _frames(4, seed=2)
+    batch = {
+        "static_rgb": frames[:2],
+        "wrist_rgb": frames[2:],
+        "instruction": ["what is on the table?", "is the drawer open?"],
+        "answer": ["a red block", "no"],
+    }
+    model.zero_grad()
+    loss, info = model.compute_vlm_loss(batch)
+    assert torch.isfinite(loss) and info["vlm_loss"] == pytest.approx(loss.item())
+    loss.backward()
+    assert model.vision_language.projector[1].weight.grad.abs().sum() > 0
+    model.zero_grad()
+    with pytest.raises(ValueError, match="answer"):
+        model.compute_vlm_loss({**batch, "answer": ["a red block", ""]})

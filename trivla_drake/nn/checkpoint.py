@@ -1,0 +1,166 @@
+"""Checkpoints: a directory with model.safetensors (the weights) and config.json (preset, every config
+field, the library configs of the pretrained-architecture parts, the action space, the normalisation
+statistics), plus the tokenizer files when a pretrained tokenizer is used."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import torch
+
+from trivla_drake.nn.config import config_from_dict, config_to_dict
+from trivla_drake.nn.normalization import NormalizationStats
+from trivla_drake.nn.tokenizer import ByteTokenizer, PretrainedTokenizer, TextTokenizer, load_tokenizer
+from trivla_drake.nn.trivla import TriVLA
+
+FORMAT = "trivla-drake-checkpoint"
+FORMAT_VERSION = 1
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+
+
+def _unique_state_dict(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """State dict without aliases (tied weights are stored once, under their first name)."""
+    seen: dict[tuple[int, int, tuple[int, ...]], str] = {}
+    out: dict[str, torch.Tensor] = {}
+    for name, tensor in model.state_dict().items():
+        key = (tensor.untyped_storage().data_ptr(), tensor.storage_offset(), tuple(tensor.shape))
+        if key in seen:
+            continue
+        seen[key] = name
+        out[name] = tensor.detach().contiguous().cpu()
+    return out
+
+
+def _aliases(model: torch.nn.Module) -> dict[str, str]:
+    """Names of tied tensors -> the name `_unique_state_dict` stores them under."""
+    seen: dict[tuple[int, int, tuple[int, ...]], str] = {}
+    aliases: dict[str, str] = {}
+    for name, tensor in model.state_dict().items():
+        key = (tensor.untyped_storage().data_ptr(), tensor.storage_offset(), tuple(tensor.shape))
+        if key in seen:
+            aliases[name] = seen[key]
+        else:
+            seen[key] = name
+    return aliases
+
+
+def save_checkpoint(model: TriVLA, directory: str) -> None:
+    """Writes `directory`/model.safetensors and `directory`/config.json (and tokenizer folders if pretrained)."""
+    from safetensors.torch import save_file
+
+    os.makedirs(directory, exist_ok=True)
+    tokenizers: dict[str, str] = {}
+    for name, module in (("vision_language", model.vision_language), ("dynamics", model.dynamics)):
+        if module is None:
+            continue
+        tok = module.tokenizer
+        if isinstance(tok, PretrainedTokenizer):
+            sub = f"tokenizer_{name}"
+            tok.save(os.path.join(directory, sub))
+            tokenizers[name] = sub
+        else:
+            tokenizers[name] = ByteTokenizer.name
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "preset": model.config.preset,
+        "config": config_to_dict(model.config),
+        "component_configs": model.component_configs(),
+        "tokenizers": tokenizers,
+        "action_space": model.action_space(),
+        "normalization": model.normalization.to_dict(),
+        "parameter_counts": model.parameter_counts(),
+    }
+    save_file(_unique_state_dict(model), os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
+    with open(os.path.join(directory, CONFIG_FILE), "w") as f:
+        json.dump(meta, f, indent=2)
+
+
+def read_checkpoint_config(directory: str) -> dict[str, Any]:
+    """The parsed config.json of a checkpoint; ValueError if it is not a TriVLA checkpoint config."""
+    path = os.path.join(directory, CONFIG_FILE)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no {CONFIG_FILE} in checkpoint directory {directory!r}")
+    try:
+        with open(path) as f:
+            meta = json.load(f)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a TriVLA checkpoint config (format != {FORMAT!r})")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path} has format_version {meta.get('format_version')}; this code reads {FORMAT_VERSION}")
+    return meta
+
+
+def load_checkpoint(
+    directory: str,
+    *,
+    action_dim: int | None = None,
+    state_dim: int | None = None,
+    device: str | torch.device = "cpu",
+) -> TriVLA:
+    """Rebuilds the model saved by `save_checkpoint`. Raises ValueError when the weights file is truncated
+    or corrupt, when weights and config disagree in names or shapes, or when the checkpoint's
+    action_dim / state_dim differ from the ones asked for."""
+    from safetensors import safe_open
+
+    meta = read_checkpoint_config(directory)
+    config = config_from_dict(meta["config"])
+    pol = config.policy
+    if action_dim is not None and action_dim != pol.action_dim:
+        raise ValueError(f"checkpoint {directory!r} has action_dim {pol.action_dim}; expected {action_dim}")
+    if state_dim is not None and state_dim != pol.state_dim:
+        raise ValueError(f"checkpoint {directory!r} has state_dim {pol.state_dim}; expected {state_dim}")
+    stats = NormalizationStats.from_dict(meta.get("normalization", {}))
+    stats.check_dims(pol.state_dim, pol.action_dim)
+
+    weights_path = os.path.join(directory, WEIGHTS_FILE)
+    if not os.path.isfile(weights_path):
+        raise FileNotFoundError(f"no {WEIGHTS_FILE} in checkpoint directory {directory!r}")
+    try:
+        with safe_open(weights_path, framework="pt", device="cpu") as f:
+            state = {key: f.get_tensor(key) for key in f.keys()}
+    except Exception as exc:  # safetensors raises its own error types for truncated/corrupt files
+        raise ValueError(f"{weights_path} is truncated or corrupt: {exc}") from exc
+
+    tokenizers: dict[str, TextTokenizer] = {}
+    for name, source in meta.get("tokenizers", {}).items():
+        tokenizers[name] = load_tokenizer(None if source == ByteTokenizer.name else os.path.join(directory, source))
+    model = TriVLA(
+        config,
+        normalization=stats,
+        component_configs=meta.get("component_configs"),
+        tokenizers=tokenizers,
+        load_pretrained=False,
+    )
+    _load_weights(model, state, weights_path)
+    return model.to(device)
+
+
+def _load_weights(model: TriVLA, state: dict[str, torch.Tensor], source: str) -> None:
+    aliases = _aliases(model)
+    expected = model.state_dict()
+    missing = [k for k in expected if k not in state and k not in aliases]
+    unexpected = [k for k in state if k not in expected]
+    mismatched = [
+        f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(expected[k].shape)}"
+        for k in expected
+        if k in state and state[k].shape != expected[k].shape
+    ]
+    if missing or unexpected or mismatched:
+        parts = []
+        if mismatched:
+            parts.append(f"{len(mismatched)} shape mismatches (e.g. {mismatched[:3]})")
+        if missing:
+            parts.append(f"{len(missing)} weights missing (e.g. {missing[:3]})")
+        if unexpected:
+            parts.append(f"{len(unexpected)} unexpected weights (e.g. {unexpected[:3]})")
+        raise ValueError(
+            f"{source} does not match the architecture in its config.json (another preset or edited config?): "
+            + "; ".join(parts)
+        )
+    model.load_state_dict({k: v for k, v in state.items()}, strict=False)
