@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
+
+# On a 2-core machine shared with physics and rendering, OpenMP threads that spin while waiting
+# turn a 0.1 s inference into seconds; passive waiting keeps them polite. Must precede torch.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 def _print_result(result: dict, as_json: bool, title: str) -> None:
