@@ -303,3 +303,21 @@ def test_results_do_not_alias_inputs_or_each_other(kinematics):
     np.testing.assert_array_equal(q, HOME)
     np.testing.assert_array_equal(first.v, saved[0])
     np.testing.assert_array_equal(first.q_next, saved[1])
+
+
+def test_answer_does_not_depend_on_earlier_ticks():
+    """Two Drake Contexts share one solver: a tick's answer must be a function of (q, target) only."""
+    kinematics = PandaKinematics()
+    fresh, used = OsqpDifferentialIK(kinematics), OsqpDifferentialIK(kinematics)
+    rng = np.random.default_rng(3)
+    for _ in range(30):  # give `used` a history of its own
+        used.solve(rng.uniform(kinematics.q_lower, kinematics.q_upper),
+                   kinematics.ee_pose(rng.uniform(kinematics.q_lower, kinematics.q_upper)))
+    active = 0
+    for _ in range(40):  # far targets: velocity bounds are active, so OSQP runs
+        q = rng.uniform(kinematics.q_lower + 0.3, kinematics.q_upper - 0.3)
+        target = kinematics.ee_pose(rng.uniform(kinematics.q_lower, kinematics.q_upper))
+        a, b = fresh.solve(q, target), used.solve(q, target)
+        active += bool(np.any(np.isclose(np.abs(a.v), 0.5 * kinematics.v_max)))
+        np.testing.assert_array_equal(a.v, b.v)
+    assert active > 10

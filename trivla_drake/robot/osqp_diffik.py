@@ -157,6 +157,8 @@ class OsqpDifferentialIK:
         cols, rows = np.tril_indices(n)
         self._triu_flat = rows * n + cols
         pattern = sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        self._rho = 0.1  # OSQP's default initial step size; reset before every run
+        self._zero_dual = np.zeros(n)
         self._solver = osqp.OSQP()
         # OSQP keeps (and later overwrites) the matrices given to setup(): hand it fresh ones.
         self._solver.setup(
@@ -169,6 +171,7 @@ class OsqpDifferentialIK:
             # Polishing prints to stdout from C; the final clip into the box replaces it.
             polishing=False,
             warm_starting=True,
+            rho=self._rho,
             eps_abs=params.eps_abs,
             eps_rel=params.eps_rel,
             max_iter=params.max_iter,
@@ -228,6 +231,16 @@ class OsqpDifferentialIK:
         self._solver.update(
             Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1]
         )
+        # Start every OSQP run from the same point for the same problem: the clipped unconstrained
+        # minimiser (close to the optimum), zero multipliers and the initial step size. The answer
+        # is then a function of (q, target_pose) alone, not of earlier ticks, so two simulations
+        # sharing this solver (two Drake Contexts) give bit-identical results.
+        if info != 0:
+            v = np.zeros_like(q)
+        np.maximum(v, bounds[0], out=v)
+        np.minimum(v, bounds[1], out=v)
+        self._solver.update_settings(rho=self._rho)
+        self._solver.warm_start(x=v, y=self._zero_dual)
         result = self._solver.solve(raise_error=False)
 
         status_val = result.info.status_val
@@ -236,13 +249,35 @@ class OsqpDifferentialIK:
         elif status_val == osqp.SolverStatus.OSQP_SOLVED_INACCURATE:
             status = DiffIKStatus.SOLVED_INACCURATE
         else:
-            # A failed run can leave a wild iterate behind; do not warm-start the next tick from it.
-            self._solver.warm_start(x=np.zeros_like(q), y=np.zeros_like(q))
             return self._hold(q, error)
-        # ADMM meets the bounds only to within its tolerance: clip, which is exact for a box.
-        v = np.maximum(result.x, bounds[0])
-        np.minimum(v, bounds[1], out=v)
+        v = self._polish(result.x, bounds)
         return DiffIKResult(q + p.dt * v, v, status, error)
+
+    def _polish(self, x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+        """The exact optimum on the active set OSQP found (what OSQP's own polishing does, silently).
+
+        ADMM meets the bounds only to within its tolerance, and its last digits depend on the
+        solver's history (in-place KKT updates), which two Drake Contexts sharing this solver must
+        not see. Fixing the active bounds and solving the free joints' normal equations exactly
+        removes both. If the active set fails the optimality check, the clipped iterate is kept.
+        """
+        scale = np.maximum(1.0, np.abs(bounds))
+        at_lower = x <= bounds[0] + 1e-4 * scale[0]
+        at_upper = x >= bounds[1] - 1e-4 * scale[1]
+        v = np.where(at_lower, bounds[0], np.where(at_upper, bounds[1], x))
+        free = ~(at_lower | at_upper)
+        if free.any():
+            fixed = ~free
+            rhs = -(self._gradient[free] + self._hessian[np.ix_(free, fixed)] @ v[fixed])
+            _, v_free, info = dposv(self._hessian[np.ix_(free, free)], rhs)
+            if info != 0 or (v_free < bounds[0][free]).any() or (v_free > bounds[1][free]).any():
+                return np.minimum(np.maximum(x, bounds[0]), bounds[1])
+            v[free] = v_free
+        # Multipliers of the active bounds must push inwards (KKT), else the set was wrong.
+        residual = self._hessian @ v + self._gradient
+        if (residual[at_lower] < -1e-9).any() or (residual[at_upper] > 1e-9).any():
+            return np.minimum(np.maximum(x, bounds[0]), bounds[1])
+        return v
 
     @staticmethod
     def _hold(q: np.ndarray, error: np.ndarray) -> DiffIKResult:

@@ -97,4 +97,16 @@ def make_station(scenario: Scenario, *, meshcat: Meshcat | None = None) -> Diagr
 
     diagram = builder.Build()
     diagram.set_name("station")
+    _warm_up_renderers(diagram, scenario)
     return diagram
+
+
+def _warm_up_renderers(diagram: Diagram, scenario: Scenario) -> None:
+    """Render each camera once. VTK's very first frame differs from every later one in a few
+    pixels; absorbing it here keeps rollouts bit-identical across Contexts and re-runs."""
+    if not scenario.cameras:
+        return
+    context = diagram.CreateDefaultContext()
+    for name in scenario.cameras:
+        sensor = diagram.GetSubsystemByName(f"{name}_sensor")
+        sensor.color_image_output_port().Eval(sensor.GetMyContextFromRoot(context))

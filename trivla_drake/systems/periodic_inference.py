@@ -100,6 +100,8 @@ def read_rgb(port, context, size: int) -> np.ndarray:
     if not port.HasValue(context):
         raise ValueError(f"input port '{port.get_name()}' is not connected (an ImageRgba8U {size}x{size} is needed)")
     image = port.Eval(context)
+    if image.width() == 0 or image.height() == 0:
+        raise ValueError(f"input port '{port.get_name()}' carries no image (0x0): is it connected to a camera?")
     if (image.width(), image.height()) != (size, size):
         raise ValueError(
             f"input port '{port.get_name()}' carries a {image.width()}x{image.height()} image; "

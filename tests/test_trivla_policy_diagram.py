@@ -1,0 +1,152 @@
+"""TriVLAPolicy under Drake: state in the Context only, seeds, re-initialisation, clear port errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
+from pydrake.systems.sensors import ImageRgba8U
+
+from trivla_drake.nn.config import make_config
+from trivla_drake.nn.trivla import TriVLA
+from trivla_drake.station import load_scenario, make_station
+from trivla_drake.systems.latency import LatencyModel
+from trivla_drake.systems.policy_wiring import add_trivla_policy
+from trivla_drake.systems.trivla_policy import PolicyRates, TriVLAPolicy
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield TriVLA(make_config("tiny")).eval()
+    torch.set_num_threads(threads)
+
+
+def _closed_loop(model, rates=None, instruction="pick up the red block"):
+    scenario = load_scenario()
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", make_station(scenario))
+    policy = add_trivla_policy(builder, station, model, rates=rates)
+    if instruction is None:  # the caller fixes it on the diagram's `instruction` input
+        builder.ExportInput(policy.GetInputPort("instruction"), "instruction")
+    else:
+        source = builder.AddNamedSystem("instruction", ConstantValueSource(AbstractValue.Make(instruction)))
+        builder.Connect(source.get_output_port(), policy.GetInputPort("instruction"))
+    diagram = builder.Build()
+    return diagram, station, policy
+
+
+def _rollout(simulator, diagram, station, seconds):
+    context = simulator.get_mutable_context()
+    simulator.AdvanceTo(context.get_time() + seconds)
+    return station.GetOutputPort("panda.state").Eval(station.GetMyContextFromRoot(context)).copy()
+
+
+def test_policy_drives_the_arm_and_publishes_a_chunk(tiny_model):
+    diagram, station, policy = _closed_loop(tiny_model)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    start = station.GetOutputPort("panda.state").Eval(station.GetMyContextFromRoot(context)).copy()
+    end = _rollout(simulator, diagram, station, 0.7)
+    chunk = policy.GetOutputPort("action_chunk").Eval(policy.GetMyContextFromRoot(context))
+    assert chunk.shape == (10, 7) and np.all(np.isfinite(chunk))
+    assert np.abs(end[:7] - start[:7]).max() > 1e-3  # an untrained policy still moves the arm
+
+
+def test_same_seed_same_rollout_and_contexts_are_independent(tiny_model):
+    diagram, station, policy = _closed_loop(tiny_model)
+    alone = Simulator(diagram)
+    reference = [_rollout(alone, diagram, station, 0.3) for _ in range(2)]
+
+    # Two contexts of the same diagram simulated alternately match the one simulated alone.
+    first, second = Simulator(diagram), Simulator(diagram)
+    policy.set_seed(second.get_mutable_context(), 123)  # a different seed in the second context
+    interleaved = []
+    for _ in range(2):
+        interleaved.append(_rollout(first, diagram, station, 0.3))
+        _rollout(second, diagram, station, 0.3)
+    np.testing.assert_array_equal(np.array(interleaved), np.array(reference))
+    assert not np.array_equal(_rollout(second, diagram, station, 0.0), reference[-1])
+
+
+def test_reinitialising_a_context_restarts_the_policy(tiny_model):
+    diagram, station, policy = _closed_loop(tiny_model)
+    simulator = Simulator(diagram)
+    first = _rollout(simulator, diagram, station, 0.6)
+    context = simulator.get_mutable_context()
+    context.SetTime(0.0)
+    diagram.SetDefaultContext(context)
+    simulator.Initialize()
+    np.testing.assert_array_equal(_rollout(simulator, diagram, station, 0.6), first)
+
+
+def test_instruction_change_is_taken_at_the_next_system2_update(tiny_model):
+    rates = PolicyRates(vision_language_period_s=0.25, dynamics_period_s=0.25, policy_period_s=0.25)
+    diagram, station, policy = _closed_loop(tiny_model, rates, instruction=None)
+    system2 = policy.systems["vision_language"]
+    runs = []
+    for new_instruction in ("pick up the red block", "open the drawer"):  # unchanged vs changed
+        simulator = Simulator(diagram)
+        context = simulator.get_mutable_context()
+        diagram.GetInputPort("instruction").FixValue(context, "pick up the red block")
+        simulator.AdvanceTo(0.1)
+        diagram.GetInputPort("instruction").FixValue(context, new_instruction)
+        q_vl = []
+        for t in (0.2, 0.3):
+            simulator.AdvanceTo(t)
+            q_vl.append(system2.GetOutputPort("q_vl").Eval(system2.GetMyContextFromRoot(context)).copy())
+        runs.append(q_vl)
+    # Before the next System 2 update (0.25 s) the change has no effect; after it, it has.
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    assert not np.array_equal(runs[0][1], runs[1][1])
+
+
+def test_latency_delays_publication_in_sim_time(tiny_model):
+    rates = PolicyRates(latency=LatencyModel("fixed", 0.1))
+    diagram, station, policy = _closed_loop(tiny_model, rates)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    policy_system = policy.systems["policy"]
+    pc = policy_system.GetMyContextFromRoot(context)
+    # System 2/3 publish at 0.1 s; System 1 first runs at 10/36 s and publishes 0.1 s later.
+    simulator.AdvanceTo(10 / 36 + 0.05)
+    assert policy_system.GetOutputPort("action_chunk").Eval(pc) is None
+    simulator.AdvanceTo(10 / 36 + 0.11)
+    assert policy_system.GetOutputPort("action_chunk").Eval(pc) is not None
+    assert policy_system.GetOutputPort("action_chunk_stamp").Eval(pc)[0] == pytest.approx(10 / 36)
+
+
+def test_unconnected_image_port_fails_at_simulation_start(tiny_model):
+    builder = DiagramBuilder()
+    policy = builder.AddSystem(TriVLAPolicy(tiny_model))
+    for name in ("instruction",):
+        builder.ExportInput(policy.GetInputPort(name), name)
+    builder.ExportInput(policy.GetInputPort("robot_state"), "robot_state")
+    builder.ExportInput(policy.GetInputPort("static_rgb"), "static_rgb")
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    diagram.GetInputPort("instruction").FixValue(context, "lift the red block")
+    diagram.GetInputPort("robot_state").FixValue(context, np.zeros(18))
+    diagram.GetInputPort("static_rgb").FixValue(context, ImageRgba8U(224, 224))
+    with pytest.raises(ValueError, match="wrist_rgb.*(not connected|is it connected)"):
+        Simulator(diagram, context).Initialize()
+
+
+def test_wrong_image_size_fails_at_simulation_start(tiny_model):
+    builder = DiagramBuilder()
+    policy = builder.AddSystem(TriVLAPolicy(tiny_model))
+    for i in range(policy.num_input_ports()):
+        builder.ExportInput(policy.get_input_port(i), policy.get_input_port(i).get_name())
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    diagram.GetInputPort("instruction").FixValue(context, "lift the red block")
+    diagram.GetInputPort("robot_state").FixValue(context, np.zeros(18))
+    diagram.GetInputPort("static_rgb").FixValue(context, ImageRgba8U(224, 224))
+    diagram.GetInputPort("wrist_rgb").FixValue(context, ImageRgba8U(640, 480))
+    with pytest.raises(ValueError, match="wrist_rgb.*640x480.*224x224"):
+        Simulator(diagram, context).Initialize()

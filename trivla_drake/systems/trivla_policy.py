@@ -1,0 +1,111 @@
+"""`TriVLAPolicy`: Systems 2, 3, 1 and the chunk executor as one Diagram to add to any builder.
+
+Ports (stable whatever systems the model keeps):
+  inputs
+    static_rgb      ImageRgba8U, the third-person camera (model size, 224x224 for `cpu`)
+    wrist_rgb       ImageRgba8U, the wrist camera
+    instruction     str, the task in natural language (read at each System 2 / 3 update)
+    robot_state     18-vector, Panda q (7 arm [rad], 2 fingers [m]) then v [rad/s, m/s]
+  outputs
+    ee_target       RigidTransform of `panda_hand_tcp` in the world [m], for DifferentialIKSystem
+    gripper_target  1-vector, finger distance [m], for the station's `panda.gripper_width`
+    action_chunk    float32 numpy (10, 7), System 1's latest chunk (None before the first)
+    q_vl, q_p       System 2's and System 3's latest outputs (None when dropped or not yet run)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, PassThrough
+from pydrake.systems.sensors import ImageRgba8U
+
+from trivla_drake.nn.trivla import TriVLA
+from trivla_drake.systems.action_chunk_executor import ActionChunkExecutor
+from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE, ActionSpace
+from trivla_drake.systems.dynamics_perception_system import DynamicsPerceptionSystem
+from trivla_drake.systems.latency import LatencyModel
+from trivla_drake.systems.policy_system import PolicySystem
+from trivla_drake.systems.vision_language_system import VisionLanguageSystem
+
+
+@dataclass
+class PolicyRates:
+    """Update periods [s] and latency models of the three systems; defaults follow the paper."""
+
+    # System 2 and System 3 may run slower than System 1; here they match its replanning rate.
+    vision_language_period_s: float = 10.0 / 36.0
+    dynamics_period_s: float = 10.0 / 36.0
+    # System 1 replans once per chunk: 10 actions at 36 Hz.
+    policy_period_s: float = 10.0 / 36.0
+    latency: LatencyModel = field(default_factory=LatencyModel)
+    # ACT-style temporal ensembling of overlapping chunks (weight decay m), or None to play the newest.
+    ensemble_decay: float | None = None
+    action_space: ActionSpace = DEFAULT_ACTION_SPACE
+
+
+class TriVLAPolicy(Diagram):
+    """The whole TriVLA policy as a Drake Diagram (see the module docstring for its ports)."""
+
+    def __init__(self, model: TriVLA, rates: PolicyRates | None = None, *, seed: int = 0):
+        super().__init__()
+        rates = rates or PolicyRates()
+        model.eval()
+        builder = DiagramBuilder()
+        inputs = {
+            "static_rgb": AbstractValue.Make(ImageRgba8U()),
+            "wrist_rgb": AbstractValue.Make(ImageRgba8U()),
+            "instruction": AbstractValue.Make(""),
+        }
+        # Pass-throughs give every input a home, so the ports exist in every ablation.
+        fan_out = {name: builder.AddNamedSystem(f"{name}_in", PassThrough(value)) for name, value in inputs.items()}
+        for name, system in fan_out.items():
+            builder.ExportInput(system.get_input_port(), name)
+        state_in = builder.AddNamedSystem("robot_state_in", PassThrough(18))
+        builder.ExportInput(state_in.get_input_port(), "robot_state")
+
+        policy = builder.AddNamedSystem(
+            "system1_policy", PolicySystem(model, period_s=rates.policy_period_s, latency=rates.latency, seed=seed)
+        )
+        builder.Connect(state_in.get_output_port(), policy.GetInputPort("robot_state"))
+        self.systems = {"policy": policy}
+        for key, cls, period, port in (
+            ("vision_language", VisionLanguageSystem, rates.vision_language_period_s, "q_vl"),
+            ("dynamics", DynamicsPerceptionSystem, rates.dynamics_period_s, "q_p"),
+        ):
+            if getattr(model, key) is None:
+                empty = builder.AddNamedSystem(f"no_{port}", ConstantValueSource(AbstractValue.Make(None)))
+                builder.Connect(empty.get_output_port(), policy.GetInputPort(port))
+                builder.ExportOutput(empty.get_output_port(), port)
+                continue
+            system = builder.AddNamedSystem(
+                f"system{2 if key == 'vision_language' else 3}_{key}",
+                cls(model, period_s=period, latency=rates.latency, seed=seed + 1),
+            )
+            for name, source in fan_out.items():
+                builder.Connect(source.get_output_port(), system.GetInputPort(name))
+            if system.HasInputPort("robot_state"):
+                builder.Connect(state_in.get_output_port(), system.GetInputPort("robot_state"))
+            builder.Connect(system.GetOutputPort(port), policy.GetInputPort(port))
+            builder.ExportOutput(system.GetOutputPort(port), port)
+            self.systems[key] = system
+
+        executor = builder.AddNamedSystem(
+            "action_chunk_executor", ActionChunkExecutor(rates.action_space, ensemble_decay=rates.ensemble_decay)
+        )
+        builder.Connect(policy.GetOutputPort("action_chunk"), executor.GetInputPort("action_chunk"))
+        builder.Connect(policy.GetOutputPort("action_chunk_stamp"), executor.GetInputPort("action_chunk_stamp"))
+        builder.Connect(state_in.get_output_port(), executor.GetInputPort("robot_state"))
+        builder.ExportOutput(executor.GetOutputPort("ee_target"), "ee_target")
+        builder.ExportOutput(executor.GetOutputPort("gripper_target"), "gripper_target")
+        builder.ExportOutput(policy.GetOutputPort("action_chunk"), "action_chunk")
+        self.systems["executor"] = executor
+        builder.BuildInto(self)
+        self.set_name("trivla_policy")
+
+    def set_seed(self, root_context, seed: int) -> None:
+        """Seed every system's inferences in the root context of the diagram holding this policy."""
+        for offset, system in enumerate(s for k, s in self.systems.items() if k != "executor"):
+            system.set_seed(system.GetMyContextFromRoot(root_context), seed + offset)
