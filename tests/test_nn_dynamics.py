@@ -140,3 +140,15 @@ def test_eq1_denoiser_recovers_x0_from_the_v_prediction_target():
     # The network input c_in x is eq. (1)'s sqrt(abar) x_0 + sqrt(1 - abar) eps.
     abar = noise_schedule.alpha_bar(s)
     torch.testing.assert_close(noise_schedule.c_in(s) * noisy, abar.sqrt() * x0 + (1 - abar).sqrt() * eps)
+
+
+def test_one_step_clip_prediction_for_inspection(model):
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 256, (224, 224, 3), dtype=np.uint8)
+    clip = model.predict_video(frame, "lift the red block", seed=3)
+    size = model.config.dynamics.video_size
+    assert clip.shape == (model.dynamics.num_frames, size, size, 3) and clip.dtype == np.uint8
+    np.testing.assert_array_equal(clip, model.predict_video(frame, "lift the red block", seed=3))
+    assert not np.array_equal(clip, model.predict_video(frame, "lift the red block", seed=4))
+    with pytest.raises(ValueError, match="rgb"):
+        model.predict_video(frame[:100], "lift the red block")

@@ -219,6 +219,37 @@ class DynamicsPerceptionModule(nn.Module):
         features = torch.cat(resized, dim=1)
         return features.unflatten(0, (batch, self.num_frames))
 
+    @torch.no_grad()
+    def predict_clip(
+        self, frames: torch.Tensor, instruction_ids: list[list[int]], *, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """The one-step clip prediction (the paper's Fig. 5): the full UNet at the final noise level
+        from pure-noise latents, denoised and decoded. uint8 (B, H, W, 3) -> uint8 (B, T+1, S, S, 3),
+        S = video_size. For inspection only; the policy uses `forward`'s features."""
+        batch = frames.shape[0]
+        device = self.text_projection.weight.device
+        condition = self.encode_frames(frames).mode()
+        text = self.encode_text(instruction_ids)
+        sigma = torch.full((batch,), self.config.sigma_max, dtype=torch.float32)
+        shape = (batch, self.num_frames, condition.shape[1], condition.shape[2], condition.shape[3])
+        eps = torch.randn(shape, generator=generator, dtype=torch.float32).to(device, self._dtype)
+        s = sigma.view(-1, 1, 1, 1, 1).to(device, self._dtype)
+        noisy = s * eps
+        sample = self._unet_input(noise_schedule.c_in(s) * noisy, condition)
+        out = self.unet(sample, noise_schedule.c_noise(sigma).to(device, self._dtype), text,
+                        self.added_time_ids(batch), return_dict=False)[0]
+        denoised = noise_schedule.c_skip(s) * noisy + noise_schedule.c_out(s) * out
+        latents = denoised.flatten(0, 1) / self.vae.config.scaling_factor
+        decoded = self._decode(latents)
+        pixels = ((decoded.float().clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8)
+        return pixels.permute(0, 2, 3, 1).unflatten(0, (batch, self.num_frames))
+
+    def _decode(self, latents: torch.Tensor) -> torch.Tensor:
+        try:  # SVD's temporal decoder wants the clip length
+            return self.vae.decode(latents, num_frames=self.num_frames).sample
+        except TypeError:
+            return self.vae.decode(latents).sample
+
     # ------------------------------------------------------------------ training: eq. (1)
 
     def video_loss(

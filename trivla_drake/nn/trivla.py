@@ -289,6 +289,20 @@ class TriVLA(nn.Module):
         )
         return {"static": f_static[0].float().cpu().numpy(), "wrist": f_wrist[0].float().cpu().numpy()}
 
+    @torch.inference_mode()
+    def predict_video(self, rgb: np.ndarray, instruction: str, *, seed: int | None = None) -> np.ndarray:
+        """System 3's one-step prediction of the clip from one view (Fig. 5): uint8 (H, W, 3) ->
+        uint8 (T+1, S, S, 3). ValueError without System 3."""
+        if self.dynamics is None:
+            raise ValueError("predict_video needs System 3 (config.use_system3 = True)")
+        image = check_image("rgb", rgb, self.image_size)
+        self.check_instruction(instruction)
+        generator = stream_generator(resolve_seed(seed), _DYNAMICS_STREAM)
+        clip = self.dynamics.predict_clip(
+            torch.from_numpy(image)[None], self._dyn_instruction_ids([instruction], "instruction"), generator=generator
+        )
+        return clip[0].cpu().numpy()
+
     def _as_tensor(self, value: Any, name: str, shape: tuple[int | None, ...]) -> torch.Tensor:
         t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not torch.is_tensor(value) else value)
         if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):

@@ -1,0 +1,55 @@
+"""`PolicyMeshcatVisualizer`: draws the end-effector target and the predicted chunk in Meshcat."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import Cylinder, Meshcat, Rgba, Sphere
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import LeafSystem
+
+from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE
+
+_AXES = (
+    (RotationMatrix.MakeYRotation(np.pi / 2), [1, 0, 0], Rgba(0.9, 0.1, 0.1, 1)),
+    (RotationMatrix.MakeXRotation(-np.pi / 2), [0, 1, 0], Rgba(0.1, 0.8, 0.1, 1)),
+    (RotationMatrix(), [0, 0, 1], Rgba(0.1, 0.2, 0.9, 1)),
+)
+
+
+class PolicyMeshcatVisualizer(LeafSystem):
+    """Publishes, every `period_s`, a triad at `ee_target` and one sphere per action of the chunk.
+
+    Inputs: `ee_target` (RigidTransform, world), `action_chunk` (abstract float numpy (H, 7) or
+    None). The chunk is drawn as the path its translations trace from the current target. Poses
+    are also written into a Meshcat recording when one is running, so saved pages show them.
+    """
+
+    def __init__(self, meshcat: Meshcat, *, period_s: float = 1.0 / 30.0, prefix: str = "trivla",
+                 horizon: int = 10, triad_length: float = 0.06):
+        super().__init__()
+        self._meshcat = meshcat
+        self._prefix = prefix
+        self._horizon = horizon
+        self._target = self.DeclareAbstractInputPort("ee_target", AbstractValue.Make(RigidTransform()))
+        self._chunk = self.DeclareAbstractInputPort("action_chunk", AbstractValue.Make(None))
+        self.DeclarePeriodicPublishEvent(period_s, 0.0, self._publish)
+        for rotation, axis, rgba in _AXES:
+            path = f"{prefix}/ee_target/{'xyz'[int(np.argmax(axis))]}"
+            meshcat.SetObject(path, Cylinder(0.004, triad_length), rgba)
+            meshcat.SetTransform(path, RigidTransform(rotation, 0.5 * triad_length * np.asarray(axis, float)))
+        for k in range(horizon):
+            shade = 1.0 - 0.6 * k / max(1, horizon - 1)
+            meshcat.SetObject(f"{prefix}/chunk/{k}", Sphere(0.006), Rgba(1.0, 0.55 * shade, 0.0, 0.9))
+
+    def _publish(self, context):
+        t = context.get_time()
+        X_WT = self._target.Eval(context)
+        self._meshcat.SetTransform(f"{self._prefix}/ee_target", X_WT, time_in_recording=t)
+        chunk = self._chunk.Eval(context) if self._chunk.HasValue(context) else None
+        if chunk is None:
+            return
+        steps = np.clip(np.asarray(chunk)[: self._horizon, :3], DEFAULT_ACTION_SPACE.low[:3], DEFAULT_ACTION_SPACE.high[:3])
+        path = X_WT.translation() + np.cumsum(steps, axis=0)
+        for k, point in enumerate(path):
+            self._meshcat.SetTransform(f"{self._prefix}/chunk/{k}", RigidTransform(point), time_in_recording=t)
