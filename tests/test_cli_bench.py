@@ -17,11 +17,13 @@ def _bench(*args):
 
 
 def test_station_bench_reports_diffik_and_realtime_factors():
-    report = _bench("--seconds", "0.5", "--diffik-problems", "50")
-    for key in ("diffik_median_us", "drake_diffik_median_us", "station_rtf_cameras", "station_rtf_no_cameras"):
+    report = _bench("--seconds", "0.6", "--diffik-problems", "50", "--preset", "tiny")
+    for key in ("diffik_median_us", "drake_diffik_median_us", "station_rtf_cameras", "station_rtf_no_cameras",
+                "closed_loop_rtf"):
         assert report[key] > 0, key
     # Rendering two cameras costs time: the run without them is faster.
     assert report["station_rtf_no_cameras"] > report["station_rtf_cameras"]
+    assert report["closed_loop_chunks"] >= 1  # System 1 ran in the closed loop
 
 
 def test_model_bench_reports_per_system_params_and_latency():

@@ -42,6 +42,14 @@ def _cmd_sim(args) -> int:
     return 0
 
 
+def _set_torch_threads(threads: int) -> None:
+    import torch
+
+    if threads < 1:
+        raise ValueError(f"--threads must be at least 1, got {threads}")
+    torch.set_num_threads(threads)
+
+
 def _cmd_bench(args) -> int:
     result: dict = {}
     if args.model:
@@ -57,8 +65,14 @@ def _cmd_bench(args) -> int:
     from trivla_drake.eval.station_benchmark import benchmark_station
     from trivla_drake.station.scenario import load_scenario
 
+    from trivla_drake.eval.closed_loop import benchmark_closed_loop
+    from trivla_drake.eval.model_loading import load_model
+
     result.update(benchmark_diffik(num_problems=args.diffik_problems))
     result.update(benchmark_station(load_scenario(args.scenario), seconds=args.seconds))
+    _set_torch_threads(args.threads)
+    model = load_model(args.checkpoint, preset=args.preset)
+    result.update(benchmark_closed_loop(load_scenario(args.scenario), model, seconds=args.seconds))
     _print_result(result, args.json, "benchmark")
     return 0
 
@@ -84,6 +98,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seconds", type=float, default=4.0, help="simulated time per station run [s]")
     bench.add_argument("--diffik-problems", type=int, default=2000, help="diff-IK problems to time")
     bench.add_argument("--scenario", default=None, help="scenarios YAML file")
+    bench.add_argument("--checkpoint", default=None, help="TriVLA checkpoint for the closed-loop figure "
+                       "(default: models/trivla_cpu, else an untrained --preset model)")
+    bench.add_argument("--threads", type=int, default=1,
+                       help="torch threads in the closed loop (default 1: physics and rendering share the cores)")
     bench.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     bench.set_defaults(run=_cmd_bench)
     return parser

@@ -95,6 +95,11 @@ class ActionChunkExecutor(LeafSystem):
         self.DeclareVectorOutputPort("gripper_target", 1, self._calc_width)
         self.DeclareVectorOutputPort("action", ACTION_DIM, self._calc_action)
 
+    @property
+    def action_space(self) -> ActionSpace:
+        """The action space (control rate, bounds) this executor applies."""
+        return self._space
+
     def _initialise(self, context, state):
         q = self._robot_state.Eval(context)
         X = self._kinematics.ee_pose(q[:7])
