@@ -17,6 +17,13 @@ _AXES = (
 )
 
 
+def chunk_path(start: np.ndarray, chunk: np.ndarray, horizon: int = 10) -> np.ndarray:
+    """Points (horizon, 3) the chunk's translations trace from `start` [m], each step clipped to the
+    action bounds as the executor clips them."""
+    low, high = DEFAULT_ACTION_SPACE.low[:3], DEFAULT_ACTION_SPACE.high[:3]
+    return np.asarray(start) + np.cumsum(np.clip(np.asarray(chunk)[:horizon, :3], low, high), axis=0)
+
+
 class PolicyMeshcatVisualizer(LeafSystem):
     """Publishes, every `period_s`, a triad at `ee_target` and one sphere per action of the chunk.
 
@@ -49,7 +56,5 @@ class PolicyMeshcatVisualizer(LeafSystem):
         chunk = self._chunk.Eval(context) if self._chunk.HasValue(context) else None
         if chunk is None:
             return
-        steps = np.clip(np.asarray(chunk)[: self._horizon, :3], DEFAULT_ACTION_SPACE.low[:3], DEFAULT_ACTION_SPACE.high[:3])
-        path = X_WT.translation() + np.cumsum(steps, axis=0)
-        for k, point in enumerate(path):
+        for k, point in enumerate(chunk_path(X_WT.translation(), chunk, self._horizon)):
             self._meshcat.SetTransform(f"{self._prefix}/chunk/{k}", RigidTransform(point), time_in_recording=t)
