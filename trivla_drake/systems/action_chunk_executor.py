@@ -86,8 +86,9 @@ class ActionChunkExecutor(LeafSystem):
         self._chunk = self.DeclareAbstractInputPort("action_chunk", AbstractValue.Make(None))
         self._stamp = self.DeclareVectorInputPort("action_chunk_stamp", 1)
         self._robot_state = self.DeclareVectorInputPort("robot_state", 18)
-        # Discrete state: commanded tcp pose [p (3), R (9 row-major)], width (1), last action (7).
-        self._pose_index = self.DeclareDiscreteState(13 + ACTION_DIM)
+        # Discrete state: commanded tcp pose [p (3), R (9 row-major)], width (1), last action (7),
+        # and the number of ticks that played a policy action (the rest held the pose).
+        self._pose_index = self.DeclareDiscreteState(13 + ACTION_DIM + 1)
         self._history_index = self.DeclareAbstractState(AbstractValue.Make(ChunkHistory()))
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialise)
         self.DeclarePeriodicUnrestrictedUpdateEvent(space.dt, 0.0, self._tick)
@@ -104,7 +105,7 @@ class ActionChunkExecutor(LeafSystem):
         q = self._robot_state.Eval(context)
         X = self._kinematics.ee_pose(q[:7])
         width = float(np.clip(q[7] + q[8], CLOSED_WIDTH, OPEN_WIDTH))
-        vector = np.concatenate([X[:3, 3], X[:3, :3].reshape(-1), [width], np.zeros(ACTION_DIM)])
+        vector = np.concatenate([X[:3, 3], X[:3, :3].reshape(-1), [width], np.zeros(ACTION_DIM), [0.0]])
         state.get_mutable_discrete_state(self._pose_index).SetFromVector(vector)
         state.get_mutable_abstract_state(self._history_index).set_value(ChunkHistory())
 
@@ -118,13 +119,15 @@ class ActionChunkExecutor(LeafSystem):
         X = np.eye(4)
         X[:3, 3] = vector[:3]
         X[:3, :3] = vector[3:12].reshape(3, 3)
-        width = vector[12]
+        width, played = vector[12], vector[-1]
         action = select_action(history, t, self._space.dt, self._decay)
         if action is None:
             action = np.zeros(ACTION_DIM)  # hold the pose and the gripper
             action[6] = 1.0 if width > 0.5 * OPEN_WIDTH else -1.0
+        else:
+            played += 1
         X, width = apply_action(X, action, self._space)
-        vector = np.concatenate([X[:3, 3], X[:3, :3].reshape(-1), [width], action])
+        vector = np.concatenate([X[:3, 3], X[:3, :3].reshape(-1), [width], action, [played]])
         state.get_mutable_discrete_state(self._pose_index).SetFromVector(vector)
         state.get_mutable_abstract_state(self._history_index).set_value(history)
 
@@ -139,4 +142,8 @@ class ActionChunkExecutor(LeafSystem):
         output.SetAtIndex(0, context.get_discrete_state(self._pose_index).value()[12])
 
     def _calc_action(self, context, output: BasicVector):
-        output.SetFromVector(context.get_discrete_state(self._pose_index).value()[13:])
+        output.SetFromVector(context.get_discrete_state(self._pose_index).value()[13 : 13 + ACTION_DIM])
+
+    def played_actions(self, context) -> int:
+        """How many ticks so far applied a policy action rather than holding (this system's context)."""
+        return int(context.get_discrete_state(self._pose_index).value()[-1])
