@@ -77,6 +77,49 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_demo(args) -> int:
+    from trivla_drake.eval.demo import run_oracle_demo, run_trivla_demo
+    from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
+    from trivla_drake.systems.latency import LatencyModel
+    from trivla_drake.tasks.suite import get_task
+
+    get_task(args.task)  # an unknown name fails here, listing the valid ones
+    latency = LatencyModel.parse(args.latency)
+    if args.policy == "oracle":
+        if args.meshcat or args.record or args.instruction or args.checkpoint:
+            raise ValueError("--meshcat, --record, --instruction and --checkpoint go with --policy trivla")
+        report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed)
+    else:
+        from trivla_drake.eval.model_loading import load_model
+
+        _set_torch_threads(args.threads)
+        model = load_model(args.checkpoint)
+        meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
+        if args.meshcat:
+            print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
+        if args.record:
+            meshcat.StartRecording(frames_per_second=30.0)
+        report = run_trivla_demo(
+            model, args.task, episodes=args.episodes, seed=args.seed, latency=latency,
+            instruction=args.instruction, meshcat=meshcat, max_seconds=args.max_seconds,
+        )
+        if args.record:
+            meshcat.StopRecording()
+            meshcat.PublishRecording()
+            save_static_html(meshcat, args.record)
+    result = report.as_dict()
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"| episode | task | instruction | success | sim time [s] |\n| --- | --- | --- | --- | --- |")
+        for i, e in enumerate(result["episodes"]):
+            print(f"| {i} | {e['task']} | {e['instruction']} | {'yes' if e['success'] else 'no: ' + e['reason']} "
+                  f"| {e['sim_time']:.2f} |")
+        print(f"\nsuccess rate {result['success_rate']:.2f}, control {result['control_hz']:.1f} Hz in sim time, "
+              f"real-time factor {result['realtime_factor']:.2f} ({result['policy']}, latency {result['latency']})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
@@ -91,6 +134,23 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--scenario-name", default="default", help="scenario to load from the file")
     sim.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     sim.set_defaults(run=_cmd_sim)
+
+    demo = commands.add_parser("demo", help="closed-loop episodes: TriVLA as Drake systems, or the oracle")
+    demo.add_argument("--policy", choices=("trivla", "oracle"), default="trivla")
+    demo.add_argument("--checkpoint", help="TriVLA checkpoint (default: models/trivla_cpu)")
+    demo.add_argument("--task", default="place_in_bowl", help="task name (see `trivla-drake evaluate --help`)")
+    demo.add_argument("--instruction", help="say this instead of the task's own instruction")
+    demo.add_argument("--episodes", type=int, default=1)
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--latency", default="zero", help="zero, measured (each inference's wall time) or seconds")
+    demo.add_argument("--max-seconds", type=float, default=None,
+                      help="episode time limit in sim seconds (default: the task's own limit)")
+    demo.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    demo.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
+    demo.add_argument("--port", type=int, default=None, help="Meshcat port")
+    demo.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
+    demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    demo.set_defaults(run=_cmd_demo)
 
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
