@@ -152,6 +152,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     demo.set_defaults(run=_cmd_demo)
 
+    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser
+
+    add_collect_parser(commands)
+    add_evaluate_parser(commands)
+
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
     bench.add_argument("--preset", default="cpu", help="model preset for --model (tiny, cpu, paper)")

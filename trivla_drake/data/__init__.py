@@ -1,1 +1,9 @@
-"""trivla_drake.data"""
+"""trivla_drake.data: LeRobot-format (v3.0) dataset writer and reader, and training samples.
+
+No pydrake here: pyarrow for parquet, OpenCV for mp4.
+"""
+
+from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, NotADatasetError
+from trivla_drake.data.samples import TrainingSamples
+
+__all__ = ["LeRobotReader", "LeRobotWriter", "NotADatasetError", "TrainingSamples"]

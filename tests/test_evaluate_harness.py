@@ -1,0 +1,115 @@
+"""The evaluation harness: report format, random baseline, parallel = serial, bad input, failures."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from trivla_drake.eval import episode as episode_module
+from trivla_drake.eval.cli_commands import main
+from trivla_drake.eval.env import SimulationError, TabletopEnv
+from trivla_drake.eval.episode import run_episode
+from trivla_drake.eval.evaluate import EvalConfig, evaluate, format_markdown, run_jobs
+from trivla_drake.eval.policies import RandomPolicy, load_policy
+from trivla_drake.tasks import TASK_NAMES
+from trivla_drake.tasks.oracle import OraclePolicy
+
+
+def test_oracle_report_has_rates_stderr_average_and_chains(capsys):
+    code = main(
+        ["evaluate", "--policy", "oracle", "--tasks", "turn_on_light,open_drawer", "--episodes", "1",
+         "--chains", "1", "--json", "--no-progress"]
+    )
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["tasks"]) == {"turn_on_light", "open_drawer"}
+    for row in report["tasks"].values():
+        assert row["success_rate"] == 1.0 and row["stderr"] == 0.0 and row["episodes"] == 1
+    assert report["average_success"] == 1.0
+    assert report["chain_avg_len"] == 5.0
+    table = format_markdown(report)
+    assert "| turn_on_light | 1.000 | 0.000 | 1 |" in table and "Avg. Len" in table
+
+
+def test_random_policy_fails():
+    report = evaluate(
+        EvalConfig(policy="random", tasks=["lift_block", "turn_on_light", "open_drawer"], episodes=1, max_steps=200),
+        progress=False,
+    )
+    assert report["average_success"] == 0.0
+    assert all("timeout" in row["failures"][0]["reason"] for row in report["tasks"].values())
+
+
+def test_two_workers_give_the_serial_results():
+    config = EvalConfig(policy="oracle", tasks=["push_block_left", "turn_off_light"], episodes=2, seed=3)
+    jobs = [("episode", name, i) for i in range(2) for name in config.tasks]
+    serial = run_jobs(config, jobs, progress=False, description="serial")
+    config.workers = 2
+    parallel = run_jobs(config, jobs, progress=False, description="parallel")
+    assert serial == parallel
+    assert len({r["seed"] for r in serial}) == 4 and all(r["success"] for r in serial)
+
+
+def test_unknown_task_and_policy_are_clear_errors(capsys):
+    assert main(["evaluate", "--tasks", "lift_block,dance", "--episodes", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "dance" in err and all(name in err for name in TASK_NAMES)
+    with pytest.raises(ValueError, match="oracle, random"):
+        load_policy("no/such/checkpoint")
+
+
+def test_a_directory_that_is_not_a_checkpoint_is_a_clear_error(tmp_path, capsys):
+    assert main(["evaluate", "--policy", str(tmp_path), "--tasks", "lift_block", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "config.json" in err and str(tmp_path) in err
+
+
+def test_a_failing_simulation_is_a_failure_with_its_reason(monkeypatch):
+    original = TabletopEnv.step
+
+    def failing_step(self, action):
+        if self.step_index == 5:
+            raise SimulationError("contact solver diverged (injected)")
+        return original(self, action)
+
+    monkeypatch.setattr(episode_module.TabletopEnv, "step", failing_step)
+    result = run_episode("turn_on_light", 1, OraclePolicy())
+    assert not result.success and "injected" in result.reason and result.steps == 5
+    report = evaluate(EvalConfig(policy="oracle", tasks=["turn_on_light"], episodes=2), progress=False)
+    assert report["tasks"]["turn_on_light"]["episodes"] == 2  # the run goes on
+    assert all("SimulationError" in f["reason"] for f in report["tasks"]["turn_on_light"]["failures"])
+
+
+def test_policy_chunks_and_bad_outputs(monkeypatch):
+    calls = []
+
+    class Chunky(RandomPolicy):
+        def act(self, observation):
+            calls.append(observation["time"])
+            return np.zeros((10, 7))
+
+    result = run_episode("lift_block", 2, Chunky(), max_steps=30)
+    assert not result.success and len(calls) == 3  # one call per chunk of 10
+
+    class Broken(RandomPolicy):
+        def act(self, observation):
+            return np.zeros(5)
+
+    result = run_episode("lift_block", 2, Broken(), max_steps=30)
+    assert not result.success and "shape" in result.reason
+
+
+def test_record_dir_saves_one_video_per_episode(tmp_path):
+    from trivla_drake.data.video import read_video
+
+    report = evaluate(
+        EvalConfig(policy="random", tasks=["turn_on_light"], episodes=1, record_dir=str(tmp_path),
+                   image_size=32, max_steps=20),
+        progress=False,
+    )
+    assert report["tasks"]["turn_on_light"]["episodes"] == 1
+    (video,) = tmp_path.glob("*.mp4")
+    frames = read_video(video)
+    assert frames.shape == (21, 32, 64, 3)  # static | wrist side by side, every step and the last state

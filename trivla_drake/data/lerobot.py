@@ -1,0 +1,456 @@
+"""Writing and reading datasets in the LeRobot format (v3.0), with pyarrow and OpenCV only.
+
+Layout (paths as in lerobot's `CHUNK_FILE_PATTERN`; this writer puts one episode in each file, which
+the format allows, so that every episode is committed on its own):
+
+    meta/info.json                                   fps, features, path templates, totals
+    meta/tasks.parquet                               task (instruction text, the index) -> task_index
+    meta/stats.json                                  per-feature min / max / mean / std / count
+    meta/episodes/chunk-XXX/file-XXX.parquet         one row per episode: length, tasks, file
+                                                     indices, frame range, per-episode stats
+    data/chunk-XXX/file-XXX.parquet                  one row per frame: timestamp, frame_index,
+                                                     episode_index, index, task_index, features
+    videos/<camera key>/chunk-XXX/file-XXX.mp4       one video per camera and episode
+
+Atomicity: an episode's videos, data and (new) task rows are written first, each through a temporary
+file renamed into place; its `meta/episodes` file is written last and is the commit. A process killed
+at any moment leaves every committed episode readable; `LeRobotWriter` reopens the folder, ignores
+anything of an uncommitted episode (it is overwritten) and rebuilds info.json and stats.json from
+the committed episodes' metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+CODEBASE_VERSION = "v3.0"
+CHUNKS_SIZE = 1000
+CHUNK_FILE = "chunk-{chunk_index:03d}/file-{file_index:03d}"
+DATA_PATH = "data/" + CHUNK_FILE + ".parquet"
+VIDEO_PATH = "videos/{video_key}/" + CHUNK_FILE + ".mp4"
+EPISODES_PATH = "meta/episodes/" + CHUNK_FILE + ".parquet"
+INFO_PATH = "meta/info.json"
+STATS_PATH = "meta/stats.json"
+TASKS_PATH = "meta/tasks.parquet"
+DEFAULT_FEATURES = {
+    "timestamp": {"dtype": "float32", "shape": [1], "names": None},
+    "frame_index": {"dtype": "int64", "shape": [1], "names": None},
+    "episode_index": {"dtype": "int64", "shape": [1], "names": None},
+    "index": {"dtype": "int64", "shape": [1], "names": None},
+    "task_index": {"dtype": "int64", "shape": [1], "names": None},
+}
+
+
+class NotADatasetError(ValueError):
+    """A folder that is not a LeRobot dataset (or not one this code can read)."""
+
+
+# ---------------------------------------------------------------- small file helpers
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as stream:
+        stream.write(data)
+        stream.flush()
+        os.fsync(stream.fileno())
+    os.replace(tmp, path)
+
+
+def _atomic_write_json(path: Path, data: Any) -> None:
+    _atomic_write_bytes(path, json.dumps(data, indent=2).encode())
+
+
+def _atomic_write_table(path: Path, table: pa.Table) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def _chunk_file(episode_index: int) -> dict[str, int]:
+    return {"chunk_index": episode_index // CHUNKS_SIZE, "file_index": episode_index % CHUNKS_SIZE}
+
+
+def video_feature(height: int, width: int, fps: float, codec: str = "mpeg4") -> dict:
+    """The info.json entry of a camera stored as mp4."""
+    return {
+        "dtype": "video",
+        "shape": [height, width, 3],
+        "names": ["height", "width", "channels"],
+        "info": {
+            "video.height": height,
+            "video.width": width,
+            "video.codec": codec,
+            "video.pix_fmt": "yuv420p",
+            "video.is_depth_map": False,
+            "video.fps": fps,
+            "video.channels": 3,
+            "has_audio": False,
+        },
+    }
+
+
+def vector_feature(names: list[str], dtype: str = "float32") -> dict:
+    """The info.json entry of a per-frame vector."""
+    return {"dtype": dtype, "shape": [len(names)], "names": list(names)}
+
+
+# ---------------------------------------------------------------- statistics
+def array_stats(values: np.ndarray) -> dict[str, list]:
+    """min / max / mean / std / count over the first axis of (N, D) values."""
+    values = np.asarray(values, dtype=np.float64)
+    return {
+        "min": values.min(0).tolist(),
+        "max": values.max(0).tolist(),
+        "mean": values.mean(0).tolist(),
+        "std": values.std(0).tolist(),
+        "count": [int(values.shape[0])],
+    }
+
+
+def image_stats(frames: np.ndarray, *, frame_stride: int = 5, pixel_stride: int = 4) -> dict[str, list]:
+    """Per-channel statistics of uint8 (T, H, W, 3) frames scaled to [0, 1], shaped (3, 1, 1) as
+    lerobot stores them; computed on every `frame_stride`-th frame and pixel grid point."""
+    sample = np.asarray(frames)[::frame_stride, ::pixel_stride, ::pixel_stride].reshape(-1, 3) / 255.0
+    stats = array_stats(sample)
+    shaped = {k: [[[v]] for v in stats[k]] for k in ("min", "max", "mean", "std")}
+    shaped["count"] = [int(len(frames[::frame_stride]))]
+    return shaped
+
+
+def aggregate_stats(per_episode: list[dict[str, dict]]) -> dict[str, dict]:
+    """Combine per-episode statistics (weighted by their counts) into dataset statistics."""
+    out: dict[str, dict] = {}
+    keys = sorted({k for stats in per_episode for k in stats})
+    for key in keys:
+        parts = [s[key] for s in per_episode if key in s]
+        counts = np.array([p["count"][0] for p in parts], dtype=np.float64)
+        means = np.stack([np.asarray(p["mean"], dtype=np.float64) for p in parts])
+        stds = np.stack([np.asarray(p["std"], dtype=np.float64) for p in parts])
+        shape = (-1,) + (1,) * (means.ndim - 1)
+        weights = (counts / counts.sum()).reshape(shape)
+        mean = (weights * means).sum(0)
+        var = (weights * (stds**2 + (means - mean) ** 2)).sum(0)
+        out[key] = {
+            "min": np.min(np.stack([np.asarray(p["min"]) for p in parts]), 0).tolist(),
+            "max": np.max(np.stack([np.asarray(p["max"]) for p in parts]), 0).tolist(),
+            "mean": mean.tolist(),
+            "std": np.sqrt(np.maximum(var, 0.0)).tolist(),
+            "count": [int(counts.sum())],
+        }
+    return out
+
+
+def _tasks_table(tasks: list[str]) -> pa.Table:
+    """tasks.parquet: the task text as the (pandas) index, with its task_index, like lerobot writes it."""
+    table = pa.table({"task_index": pa.array(range(len(tasks)), pa.int64()), "task": pa.array(tasks, pa.string())})
+    pandas_meta = {
+        "index_columns": ["task"],
+        "column_indexes": [
+            {"name": None, "field_name": None, "pandas_type": "unicode", "numpy_type": "object",
+             "metadata": {"encoding": "UTF-8"}}
+        ],
+        "columns": [
+            {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
+             "metadata": None},
+            {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object",
+             "metadata": None},
+        ],
+        "creator": {"library": "pyarrow", "version": pa.__version__},
+        "pandas_version": "2.2.0",
+    }
+    return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+
+
+def _read_episode_rows(root: Path) -> list[dict]:
+    rows = []
+    for path in sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet")):
+        rows.extend(pq.read_table(path).to_pylist())
+    rows.sort(key=lambda r: r["episode_index"])
+    return rows
+
+
+def _episode_stats(row: dict) -> dict[str, dict]:
+    stats: dict[str, dict] = {}
+    for column, value in row.items():
+        if column.startswith("stats/") and value is not None:
+            _, rest = column.split("/", 1)
+            feature, metric = rest.rsplit("/", 1)
+            stats.setdefault(feature, {})[metric] = value
+    return stats
+
+
+# ---------------------------------------------------------------- writer
+class LeRobotWriter:
+    """Appends episodes to a LeRobot v3.0 dataset, one committed episode at a time (resumable)."""
+
+    def __init__(self, root: str | os.PathLike, *, fps: float, features: dict[str, dict], robot_type: str = "panda"):
+        self.root = Path(root)
+        self.fps = float(fps)
+        self.robot_type = robot_type
+        self.features = {**{k: dict(v) for k, v in features.items()}, **DEFAULT_FEATURES}
+        for name in features:
+            if "/" in name:
+                raise ValueError(f"feature name {name!r} must not contain '/'")
+        self.video_keys = [k for k, v in self.features.items() if v["dtype"] == "video"]
+        self.vector_keys = [k for k, v in features.items() if v["dtype"] != "video"]
+        if (self.root / INFO_PATH).is_file():
+            self._open_existing()
+        else:
+            if self.root.exists() and any(p for p in self.root.iterdir() if not p.name.startswith(".")):
+                raise NotADatasetError(
+                    f"{self.root} exists and is not empty but has no {INFO_PATH}: not a LeRobot dataset, "
+                    "refusing to write into it"
+                )
+            self.root.mkdir(parents=True, exist_ok=True)
+            self._episodes: list[dict] = []
+            self._tasks: list[str] = []
+            self._write_info()
+
+    def _open_existing(self) -> None:
+        info = json.loads((self.root / INFO_PATH).read_text())
+        if info.get("codebase_version") != CODEBASE_VERSION:
+            raise NotADatasetError(f"{self.root}: codebase_version {info.get('codebase_version')!r}, expected {CODEBASE_VERSION}")
+        if not math.isclose(float(info["fps"]), self.fps):
+            raise ValueError(f"{self.root} was written at fps {info['fps']}, not {self.fps}: use another --out")
+        old = {k: (v["dtype"], list(v["shape"])) for k, v in info["features"].items()}
+        new = {k: (v["dtype"], list(v["shape"])) for k, v in self.features.items()}
+        if old != new:
+            raise ValueError(f"{self.root} has features {old}, these episodes have {new}: use another --out")
+        self._episodes = _read_episode_rows(self.root)
+        for i, row in enumerate(self._episodes):
+            if row["episode_index"] != i:
+                raise NotADatasetError(f"{self.root}: committed episodes are not numbered 0..N-1 (at {i})")
+        tasks_path = self.root / TASKS_PATH
+        self._tasks = pq.read_table(tasks_path).column("task").to_pylist() if tasks_path.is_file() else []
+        for row in self._episodes:  # tasks.parquet is written before each commit; this is a safety net
+            for task in row["tasks"]:
+                if task not in self._tasks:
+                    self._tasks.append(task)
+        self._write_info()
+
+    @property
+    def num_episodes(self) -> int:
+        return len(self._episodes)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self._episodes[-1]["dataset_to_index"]) if self._episodes else 0
+
+    def episode_rows(self) -> list[dict]:
+        """The committed episodes' metadata rows."""
+        return list(self._episodes)
+
+    def add_episode(
+        self,
+        frames: dict[str, np.ndarray],
+        task: str,
+        *,
+        videos: dict[str, str | os.PathLike | np.ndarray] | None = None,
+        video_stats: dict[str, dict] | None = None,
+        extra: dict[str, Any] | None = None,
+    ) -> int:
+        """Commit one episode; returns its index.
+
+        `frames`: feature -> (T, D) array for every non-video feature. `videos`: camera key -> an
+        encoded mp4 file (moved into place) or (T, H, W, 3) uint8 frames (encoded here).
+        `video_stats`: camera key -> `image_stats` (computed from the frames when they are given).
+        `extra`: more JSON-able columns for the episode's metadata row (names like 'trivla/seed').
+        """
+        from trivla_drake.data.video import write_video
+
+        videos = dict(videos or {})
+        video_stats = dict(video_stats or {})
+        missing = [k for k in self.vector_keys if k not in frames] + [k for k in self.video_keys if k not in videos]
+        if missing:
+            raise ValueError(f"episode is missing features {missing}")
+        length = len(frames[self.vector_keys[0]])
+        if length == 0:
+            raise ValueError("an episode needs at least one frame")
+        for key in self.vector_keys:
+            shape = tuple(self.features[key]["shape"])
+            array = np.asarray(frames[key])
+            if array.shape != (length,) + shape:
+                raise ValueError(f"feature {key!r} has shape {array.shape}, expected {(length,) + shape}")
+        index = self.num_episodes
+        where = _chunk_file(index)
+        start = self.num_frames
+        if task not in self._tasks:
+            self._tasks.append(task)
+            _atomic_write_table(self.root / TASKS_PATH, _tasks_table(self._tasks))
+        task_index = self._tasks.index(task)
+
+        row: dict[str, Any] = {
+            "episode_index": index,
+            "tasks": [task],
+            "length": length,
+            "data/chunk_index": where["chunk_index"],
+            "data/file_index": where["file_index"],
+            "dataset_from_index": start,
+            "dataset_to_index": start + length,
+        }
+        for key in self.video_keys:
+            target = self.root / VIDEO_PATH.format(video_key=key, **where)
+            source = videos[key]
+            if isinstance(source, np.ndarray):
+                if len(source) != length:
+                    raise ValueError(f"video {key!r} has {len(source)} frames, the episode {length}")
+                video_stats.setdefault(key, image_stats(source))
+                write_video(target, source, self.fps)
+            else:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(source), str(target))
+            row.update(
+                {
+                    f"videos/{key}/chunk_index": where["chunk_index"],
+                    f"videos/{key}/file_index": where["file_index"],
+                    f"videos/{key}/from_timestamp": 0.0,
+                    f"videos/{key}/to_timestamp": length / self.fps,
+                }
+            )
+
+        columns: dict[str, pa.Array] = {}
+        for key in self.vector_keys:
+            feature = self.features[key]
+            array = np.asarray(frames[key], dtype=feature["dtype"])
+            flat = pa.array(array.reshape(-1))
+            columns[key] = pa.FixedSizeListArray.from_arrays(flat, int(feature["shape"][0]))
+        columns["timestamp"] = pa.array(np.arange(length, dtype=np.float32) / np.float32(self.fps))
+        columns["frame_index"] = pa.array(np.arange(length, dtype=np.int64))
+        columns["episode_index"] = pa.array(np.full(length, index, dtype=np.int64))
+        columns["index"] = pa.array(np.arange(start, start + length, dtype=np.int64))
+        columns["task_index"] = pa.array(np.full(length, task_index, dtype=np.int64))
+        _atomic_write_table(self.root / DATA_PATH.format(**where), pa.table(columns))
+
+        stats = {key: array_stats(np.asarray(frames[key])) for key in self.vector_keys}
+        stats.update({key: video_stats[key] for key in self.video_keys if key in video_stats})
+        for name, values in (
+            ("timestamp", columns["timestamp"].to_numpy()[:, None]),
+            ("frame_index", np.arange(length)[:, None]),
+            ("episode_index", np.full((length, 1), index)),
+            ("index", np.arange(start, start + length)[:, None]),
+            ("task_index", np.full((length, 1), task_index)),
+        ):
+            stats[name] = array_stats(values)
+        for feature, metrics in stats.items():
+            for metric, value in metrics.items():
+                row[f"stats/{feature}/{metric}"] = value
+        row["meta/episodes/chunk_index"] = where["chunk_index"]
+        row["meta/episodes/file_index"] = where["file_index"]
+        for key, value in (extra or {}).items():
+            row[key] = value
+        # The commit: from here on the episode is part of the dataset.
+        _atomic_write_table(self.root / EPISODES_PATH.format(**where), pa.Table.from_pylist([row]))
+        self._episodes.append(row)
+        self._write_info()
+        return index
+
+    def _write_info(self) -> None:
+        n = self.num_episodes
+        info = {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": self.robot_type,
+            "total_episodes": n,
+            "total_frames": self.num_frames,
+            "total_tasks": len(self._tasks),
+            "chunks_size": CHUNKS_SIZE,
+            "data_files_size_in_mb": 100,
+            "video_files_size_in_mb": 500,
+            "fps": self.fps,
+            "splits": {"train": f"0:{n}"},
+            "data_path": DATA_PATH,
+            "video_path": VIDEO_PATH if self.video_keys else None,
+            "features": self.features,
+        }
+        _atomic_write_json(self.root / INFO_PATH, info)
+        if self._episodes:
+            _atomic_write_json(self.root / STATS_PATH, aggregate_stats([_episode_stats(r) for r in self._episodes]))
+        if not (self.root / TASKS_PATH).is_file():
+            _atomic_write_table(self.root / TASKS_PATH, _tasks_table(self._tasks))
+
+
+# ---------------------------------------------------------------- reader
+class LeRobotReader:
+    """Reads a LeRobot v3.0 dataset folder: metadata, per-episode frames and decoded videos."""
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise NotADatasetError(f"{self.root} is not a LeRobot dataset: no such directory")
+        info_path = self.root / INFO_PATH
+        if not info_path.is_file():
+            raise NotADatasetError(f"{self.root} is not a LeRobot dataset: {INFO_PATH} is missing")
+        try:
+            self.info = json.loads(info_path.read_text())
+            self.fps = float(self.info["fps"])
+            self.features = self.info["features"]
+            self.data_path = self.info["data_path"]
+            self.video_path = self.info.get("video_path")
+        except (ValueError, KeyError, TypeError) as error:
+            raise NotADatasetError(f"{self.root} is not a LeRobot dataset: {INFO_PATH} is unreadable ({error})") from error
+        if not str(self.info.get("codebase_version", "")).startswith("v3"):
+            raise NotADatasetError(
+                f"{self.root}: codebase_version {self.info.get('codebase_version')!r} is not supported (v3.x only)"
+            )
+        try:
+            self.episodes = _read_episode_rows(self.root)
+            tasks_path = self.root / TASKS_PATH
+            self.tasks = pq.read_table(tasks_path).column("task").to_pylist() if tasks_path.is_file() else []
+        except (OSError, pa.ArrowException) as error:
+            raise NotADatasetError(f"{self.root}: cannot read the dataset's metadata ({error})") from error
+        stats_path = self.root / STATS_PATH
+        self.stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
+        self.camera_keys = [k for k, v in self.features.items() if v["dtype"] == "video"]
+
+    @property
+    def num_episodes(self) -> int:
+        return len(self.episodes)
+
+    @property
+    def num_frames(self) -> int:
+        return int(sum(e["length"] for e in self.episodes))
+
+    def episode_frames(self, episode_index: int) -> dict[str, np.ndarray]:
+        """Every non-video column of one episode: name -> (T,) or (T, D) array."""
+        row = self.episodes[episode_index]
+        path = self.root / self.data_path.format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+        table = pq.read_table(path)
+        index = table.column("index").to_numpy()
+        keep = np.flatnonzero((index >= row["dataset_from_index"]) & (index < row["dataset_to_index"]))
+        table = table.take(pa.array(keep))
+        out: dict[str, np.ndarray] = {}
+        for name in table.column_names:
+            column = table.column(name).combine_chunks()
+            if pa.types.is_fixed_size_list(column.type):
+                out[name] = column.flatten().to_numpy(zero_copy_only=False).reshape(len(column), column.type.list_size)
+            elif pa.types.is_list(column.type):
+                out[name] = np.stack(column.to_numpy(zero_copy_only=False)) if len(column) else np.empty((0,))
+            else:
+                out[name] = column.to_numpy(zero_copy_only=False)
+        return out
+
+    def episode_video(self, episode_index: int, key: str) -> np.ndarray:
+        """All frames of one camera for one episode, (T, H, W, 3) uint8."""
+        from trivla_drake.data.video import read_video
+
+        if key not in self.camera_keys:
+            raise ValueError(f"unknown camera {key!r}; this dataset has {self.camera_keys}")
+        row = self.episodes[episode_index]
+        path = self.root / self.video_path.format(
+            video_key=key, chunk_index=row[f"videos/{key}/chunk_index"], file_index=row[f"videos/{key}/file_index"]
+        )
+        frames = read_video(path)
+        first = int(round(row[f"videos/{key}/from_timestamp"] * self.fps))
+        return frames[first : first + int(row["length"])]
+
+    def task_of(self, episode_index: int) -> str:
+        return self.episodes[episode_index]["tasks"][0]

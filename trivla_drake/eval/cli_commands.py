@@ -1,0 +1,140 @@
+"""The `collect` and `evaluate` subcommands, for `trivla_drake.cli` to register:
+
+    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser
+    add_collect_parser(commands)    # commands = parser.add_subparsers(...)
+    add_evaluate_parser(commands)
+
+Each sets `run` to a function taking the parsed args and returning the exit code, like the other
+subcommands. User errors (unknown task, not a dataset, bad numbers) print one line and return 2.
+`python -m trivla_drake.eval.cli_commands collect|evaluate ...` runs them without cli.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from trivla_drake.tasks.suite import TASK_NAMES
+
+
+def _user_errors():
+    from trivla_drake.data.lerobot import NotADatasetError
+    from trivla_drake.station.scenario import ScenarioError
+
+    return (ValueError, NotADatasetError, ScenarioError, FileNotFoundError, NotImplementedError)
+
+
+def _task_list(text: str) -> list[str]:
+    from trivla_drake.tasks.suite import parse_task_list
+
+    return parse_task_list(text)
+
+
+def run_collect(args: argparse.Namespace) -> int:
+    """`trivla-drake collect`: oracle demonstrations -> LeRobot dataset."""
+    from trivla_drake.eval.collect import CollectConfig, collect
+
+    try:
+        config = CollectConfig(
+            out=args.out,
+            episodes_per_task=args.episodes_per_task,
+            tasks=_task_list(",".join(args.tasks) if args.tasks else "all"),
+            seed=args.seed,
+            workers=args.workers,
+            image_size=args.image_size,
+        )
+        summary = collect(config, progress=not args.no_progress)
+    except _user_errors() as error:
+        print(f"trivla-drake collect: error: {error}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"| dataset | {summary['out']} |\n| --- | --- |")
+        print(f"| episodes | {summary['episodes']} |\n| frames | {summary['frames']} |")
+        for task, n in summary["per_task"].items():
+            failed = summary["failed_attempts"].get(task, 0)
+            print(f"| {task} | {n} episodes, {failed} failed attempts |")
+    return 1 if summary["short_tasks"] else 0
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    """`trivla-drake evaluate`: closed-loop success rates and chain Avg. Len."""
+    from trivla_drake.eval.evaluate import EvalConfig, evaluate, format_markdown
+
+    try:
+        config = EvalConfig(
+            policy=args.policy,
+            tasks=_task_list(args.tasks) if args.episodes > 0 else [],
+            episodes=args.episodes,
+            seed=args.seed,
+            chains=args.chains,
+            paraphrases=args.paraphrases,
+            workers=args.workers,
+            record_dir=args.record_dir,
+            image_size=args.image_size,
+            max_steps=args.max_steps,
+        )
+        report = evaluate(config, progress=not args.no_progress)
+    except _user_errors() as error:
+        print(f"trivla-drake evaluate: error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps(report) if args.json else format_markdown(report))
+    return 0
+
+
+def add_collect_parser(commands) -> argparse.ArgumentParser:
+    """Register `collect` on an argparse subparsers object."""
+    parser = commands.add_parser(
+        "collect", help="roll out the scripted oracle and write a LeRobot-format dataset (resumable)"
+    )
+    parser.add_argument("--out", required=True, help="dataset folder (resumed if it holds an earlier run)")
+    parser.add_argument("--episodes-per-task", type=int, required=True, help="successful episodes per task")
+    parser.add_argument(
+        "--tasks", nargs="+", default=None, metavar="TASK",
+        help=f"tasks (default: all): {', '.join(TASK_NAMES)}; also accepts one comma-separated list",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--image-size", type=int, default=224, help="camera image size [px] (default 224)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    parser.set_defaults(run=run_collect)
+    return parser
+
+
+def add_evaluate_parser(commands) -> argparse.ArgumentParser:
+    """Register `evaluate` on an argparse subparsers object."""
+    parser = commands.add_parser("evaluate", help="closed-loop evaluation: per-task success and chain Avg. Len")
+    parser.add_argument("--policy", default="oracle", help="oracle, random, or a checkpoint directory")
+    parser.add_argument("--tasks", default="all", help=f"all, or comma-separated names: {', '.join(TASK_NAMES)}")
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per task (default 10; 0: chains only)")
+    parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    parser.add_argument("--chains", type=int, default=0, help="chains of 5 tasks to run (default 0)")
+    parser.add_argument("--paraphrases", action="store_true", help="use held-out instruction paraphrases")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--record-dir", default=None, help="save one mp4 per episode / chain here")
+    parser.add_argument("--image-size", type=int, default=None, help="camera size for policies that look (224)")
+    parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: per task)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.set_defaults(run=run_evaluate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Standalone entry point with just these two subcommands."""
+    import logging
+
+    parser = argparse.ArgumentParser(prog="trivla-drake")
+    commands = parser.add_subparsers(dest="command", required=True)
+    add_collect_parser(commands)
+    add_evaluate_parser(commands)
+    args = parser.parse_args(argv)
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,229 @@
+"""`collect`: roll out the scripted oracle and write its successful episodes as a LeRobot dataset.
+
+Attempt a of task T uses the seed `derive_seed(seed, T, a)`. Each task gets attempts 0, 1, 2, ...
+until it has `episodes_per_task` successes (at most `2 N + 5` attempts); failures are recorded in
+`meta/trivla_collection.json` with their reasons and never written as episodes. Episodes are
+committed one at a time in a fixed order, so a killed run leaves every finished episode readable,
+and running the same command again resumes: attempts already committed or failed are skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from trivla_drake.data.lerobot import LeRobotWriter, image_stats, vector_feature, video_feature
+from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
+from trivla_drake.tasks.suite import TASK_NAMES, get_task
+
+_log = logging.getLogger(__name__)
+STATE_NAMES = (
+    [f"panda_joint{i}_position" for i in range(1, 8)]
+    + ["panda_finger_joint1_position", "panda_finger_joint2_position"]
+    + [f"panda_joint{i}_velocity" for i in range(1, 8)]
+    + ["panda_finger_joint1_velocity", "panda_finger_joint2_velocity"]
+)
+TCP_POSE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz"]
+CAMERAS = {"static_rgb": "observation.images.static", "wrist_rgb": "observation.images.wrist"}
+PROGRESS_FILE = "meta/trivla_collection.json"
+STAGING = ".staging"
+
+
+@dataclass
+class CollectConfig:
+    """What `collect` writes."""
+
+    # Dataset folder (created, or resumed if it holds an earlier run's dataset).
+    out: str
+    # Successful episodes wanted per task.
+    episodes_per_task: int = 50
+    # Task names (all by default).
+    tasks: list[str] = field(default_factory=lambda: list(TASK_NAMES))
+    # Base seed.
+    seed: int = 0
+    # Worker processes.
+    workers: int = 1
+    # Camera image size [px] (square).
+    image_size: int = 224
+
+    def validate(self) -> None:
+        if self.episodes_per_task < 1:
+            raise ValueError(f"--episodes-per-task must be >= 1, got {self.episodes_per_task}")
+        if self.workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {self.workers}")
+        if self.image_size < 16 or self.image_size % 2:
+            raise ValueError(f"image size must be an even number >= 16, got {self.image_size}")
+        if not self.tasks:
+            raise ValueError("--tasks is empty")
+        for name in self.tasks:
+            get_task(name)
+
+    def max_attempts(self) -> int:
+        return 2 * self.episodes_per_task + 5
+
+
+def dataset_features(image_size: int, fps: float) -> dict[str, dict]:
+    """The features of our datasets (see info.json)."""
+    return {
+        CAMERAS["static_rgb"]: video_feature(image_size, image_size, fps),
+        CAMERAS["wrist_rgb"]: video_feature(image_size, image_size, fps),
+        "observation.state": vector_feature(STATE_NAMES),
+        "observation.tcp_pose": vector_feature(TCP_POSE_NAMES),
+        "action": vector_feature(list(ACTION_NAMES)),
+    }
+
+
+def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
+    """Run one oracle attempt; on success stage its videos. Top level: runs in workers."""
+    from trivla_drake.eval.episode import derive_seed, run_episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    seed = derive_seed(config.seed, task, attempt)
+    result = run_episode(task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True)
+    out = {"task": task, "attempt": attempt, **result.to_dict()}
+    if not result.success:
+        return out
+    from trivla_drake.data.video import write_video
+
+    trajectory = result.trajectory
+    staging = Path(config.out) / STAGING
+    out["videos"], out["video_stats"] = {}, {}
+    for obs_key, feature in CAMERAS.items():
+        frames = np.stack(trajectory.images[obs_key])
+        path = staging / f"{task}-{attempt:04d}-{obs_key}.mp4"
+        write_video(path, frames, DEFAULT_ACTION_SPACE.control_rate_hz)
+        out["videos"][feature] = str(path)
+        out["video_stats"][feature] = image_stats(frames)
+    out["frames"] = {
+        "observation.state": np.stack(trajectory.states),
+        "observation.tcp_pose": np.stack(trajectory.tcp_poses),
+        "action": np.stack(trajectory.actions),
+    }
+    return out
+
+
+class _Progress:
+    """meta/trivla_collection.json: the run's settings and every failed attempt (with its reason)."""
+
+    def __init__(self, root: Path, config: CollectConfig):
+        self.path = root / PROGRESS_FILE
+        self.failed: dict[str, dict[str, str]] = {}
+        if self.path.is_file():
+            saved = json.loads(self.path.read_text())
+            for key in ("seed", "image_size"):
+                if saved["config"][key] != getattr(config, key):
+                    raise ValueError(
+                        f"{root} was collected with {key} {saved['config'][key]}, not {getattr(config, key)}: "
+                        "use the same settings to resume, or another --out"
+                    )
+            self.failed = saved.get("failed", {})
+        self.config = config
+
+    def add_failure(self, task: str, attempt: int, reason: str) -> None:
+        self.failed.setdefault(task, {})[str(attempt)] = reason
+        self.save()
+
+    def save(self) -> None:
+        from trivla_drake.data.lerobot import _atomic_write_json
+
+        _atomic_write_json(self.path, {"config": asdict(self.config), "failed": self.failed})
+
+
+def collect(config: CollectConfig, *, progress: bool = True) -> dict:
+    """Collect (or resume collecting) the dataset; returns a summary."""
+    from tqdm import tqdm
+
+    config.validate()
+    root = Path(config.out)
+    fps = DEFAULT_ACTION_SPACE.control_rate_hz
+    writer = LeRobotWriter(root, fps=fps, features=dataset_features(config.image_size, fps), robot_type="panda")
+    state = _Progress(root, config)
+    state.save()
+    shutil.rmtree(root / STAGING, ignore_errors=True)  # videos of attempts that were never committed
+    done: dict[str, set[int]] = {t: set() for t in config.tasks}
+    for row in writer.episode_rows():
+        if row.get("trivla/task") in done:
+            done[row["trivla/task"]].add(int(row["trivla/attempt"]))
+    target = config.episodes_per_task * len(config.tasks)
+    bar = tqdm(total=target, initial=sum(min(len(v), config.episodes_per_task) for v in done.values()),
+               desc="collect", unit="ep", disable=not progress)
+    pool = None
+    if config.workers > 1:
+        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"))
+    try:
+        while True:
+            batch = _next_batch(config, done, state.failed)
+            if not batch:
+                break
+            for result in _run_ordered(config, batch, pool):
+                task, attempt = result["task"], result["attempt"]
+                if not result["success"]:
+                    state.add_failure(task, attempt, result["reason"])
+                    continue
+                writer.add_episode(
+                    result["frames"],
+                    result["instruction"],
+                    videos=result["videos"],
+                    video_stats=result["video_stats"],
+                    extra={
+                        "trivla/task": task,
+                        "trivla/attempt": attempt,
+                        "trivla/seed": result["seed"],
+                        "trivla/params": list(result["params"]),
+                    },
+                )
+                done[task].add(attempt)
+                bar.update(1)
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    shutil.rmtree(root / STAGING, ignore_errors=True)
+    per_task = {t: len(done[t]) for t in config.tasks}
+    short = {t: n for t, n in per_task.items() if n < config.episodes_per_task}
+    return {
+        "out": str(root),
+        "episodes": writer.num_episodes,
+        "frames": writer.num_frames,
+        "per_task": per_task,
+        "failed_attempts": {t: len(v) for t, v in state.failed.items() if t in per_task},
+        "short_tasks": short,
+    }
+
+
+def _next_batch(config: CollectConfig, done: dict[str, set[int]], failed: dict[str, dict]) -> list[tuple[str, int]]:
+    """The next attempts to run: for each task still short of episodes, as many new attempts as it
+    needs, interleaved across tasks (so a partial dataset stays balanced)."""
+    per_task: list[list[tuple[str, int]]] = []
+    for task in config.tasks:
+        need = config.episodes_per_task - len(done[task])
+        tried = done[task] | {int(a) for a in failed.get(task, {})}
+        fresh = [a for a in range(config.max_attempts()) if a not in tried][: max(need, 0)]
+        per_task.append([(task, a) for a in fresh])
+    batch = []
+    for rank in range(max((len(p) for p in per_task), default=0)):
+        batch.extend(p[rank] for p in per_task if rank < len(p))
+    return batch
+
+
+def _run_ordered(config: CollectConfig, batch: list[tuple[str, int]], pool):
+    """Yield the attempts' results in batch order (computed in `pool` if given)."""
+    if pool is None:
+        for task, attempt in batch:
+            yield _attempt(config, task, attempt)
+        return
+    futures = {pool.submit(_attempt, config, task, attempt): i for i, (task, attempt) in enumerate(batch)}
+    ready: dict[int, dict] = {}
+    next_index = 0
+    for future in as_completed(futures):
+        ready[futures[future]] = future.result()
+        while next_index in ready:
+            yield ready.pop(next_index)
+            next_index += 1

@@ -1,0 +1,261 @@
+"""The episode runner: one task (or a chain of five) from a seeded initial state, a policy acting at
+the control rate, success checked after every step from the simulator's state.
+
+Every random choice of an episode (scene, target block, instruction, start posture, and the seed
+given to the policy) comes from the episode's seed, and `TabletopEnv.reset` returns the simulation
+(reused within a process) to a clean state, so an episode's outcome does not depend on which
+process runs it or what ran before.
+"""
+
+from __future__ import annotations
+
+import logging
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trivla_drake.eval.env import TabletopEnv
+from trivla_drake.eval.policies import Policy, as_action_rows
+from trivla_drake.station.scenario import Scenario
+from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
+from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, sample_chain_scene
+from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
+
+_log = logging.getLogger(__name__)
+
+
+_ENVS: dict[int | None, TabletopEnv] = {}
+
+
+def shared_env(image_size: int | None, scenario: Scenario | None = None) -> TabletopEnv:
+    """A TabletopEnv for this process, reused across episodes (for the default scenario)."""
+    if scenario is not None:
+        return TabletopEnv(scenario, image_size=image_size)
+    if image_size not in _ENVS:
+        _ENVS[image_size] = TabletopEnv(image_size=image_size)
+    return _ENVS[image_size]
+
+
+def derive_seed(seed: int, *keys: int | str) -> int:
+    """A 32-bit seed from a base seed and keys (names hashed with crc32, stable across processes)."""
+    words = [int(seed) & 0xFFFFFFFF] + [zlib.crc32(k.encode()) if isinstance(k, str) else int(k) for k in keys]
+    return int(np.random.SeedSequence(words).generate_state(1)[0])
+
+
+@dataclass
+class Trajectory:
+    """What a demonstration records, one row per control step (the terminal state is not a row)."""
+
+    states: list[np.ndarray] = field(default_factory=list)  # (18,) panda.state
+    actions: list[np.ndarray] = field(default_factory=list)  # (7,) the action applied (clipped)
+    tcp_poses: list[np.ndarray] = field(default_factory=list)  # (7,) xyz + quaternion wxyz, measured
+    images: dict[str, list[np.ndarray]] = field(default_factory=dict)  # key -> (H, W, 3) uint8
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+@dataclass
+class EpisodeResult:
+    """The outcome of one episode."""
+
+    task: str
+    instruction: str
+    params: tuple[str, ...]
+    seed: int
+    success: bool
+    steps: int
+    reason: str = ""  # why it failed ("" on success)
+    trajectory: Trajectory | None = None
+
+    def to_dict(self) -> dict:
+        return {
+            "task": self.task,
+            "instruction": self.instruction,
+            "params": list(self.params),
+            "seed": self.seed,
+            "success": self.success,
+            "steps": self.steps,
+            "reason": self.reason,
+        }
+
+
+@dataclass
+class ChainResult:
+    """The outcome of a chain: how many tasks in a row succeeded, and each task's result."""
+
+    seed: int
+    completed: int
+    subtasks: list[EpisodeResult]
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        return {
+            "seed": self.seed,
+            "completed": self.completed,
+            "reason": self.reason,
+            "subtasks": [s.to_dict() for s in self.subtasks],
+        }
+
+
+class _Recorder:
+    """Collects the rows of a trajectory and/or video frames."""
+
+    def __init__(self, keep_trajectory: bool, video_path: str | Path | None, fps: float):
+        self.trajectory = Trajectory() if keep_trajectory else None
+        self.frames: list[np.ndarray] | None = [] if video_path is not None else None
+        self.video_path = video_path
+        self.fps = fps
+
+    def add(self, obs: dict, action: np.ndarray | None) -> None:
+        if self.frames is not None and "static_rgb" in obs:
+            self.frames.append(np.concatenate([obs["static_rgb"], obs["wrist_rgb"]], axis=1))
+        if self.trajectory is not None and action is not None:
+            t = self.trajectory
+            t.states.append(np.asarray(obs["state"], dtype=np.float32))
+            t.actions.append(np.clip(action, ACTION_LOW, ACTION_HIGH).astype(np.float32))
+            t.tcp_poses.append(_pose7(obs["tcp_pose"]))
+            for key in ("static_rgb", "wrist_rgb"):
+                if key in obs:
+                    t.images.setdefault(key, []).append(obs[key])
+
+    def finish(self) -> None:
+        if self.frames:
+            from trivla_drake.data.video import write_video
+
+            write_video(self.video_path, np.stack(self.frames), self.fps)
+
+
+def _pose7(X: np.ndarray) -> np.ndarray:
+    from pydrake.math import RotationMatrix
+
+    q = RotationMatrix(X[:3, :3]).ToQuaternion()
+    return np.array([*X[:3, 3], q.w(), q.x(), q.y(), q.z()], dtype=np.float32)
+
+
+def _run_subtask(
+    env: TabletopEnv,
+    obs: dict,
+    policy: Policy,
+    instance: TaskInstance,
+    seed: int,
+    max_steps: int,
+    recorder: _Recorder,
+) -> tuple[EpisodeResult, dict]:
+    """Drive `policy` on one task from the env's current state until success or `max_steps`."""
+    task = get_task(instance.task)
+    initial = env.scene()
+    result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0)
+    if task.success(instance.params, initial, initial):
+        result.reason = "predicate already true at the start (not counted as a success)"
+        return result, obs
+    policy.reset(instance.instruction, seed)
+    queue: list[np.ndarray] = []
+    step = 0
+    while step < max_steps:
+        obs["instruction"] = instance.instruction
+        if not queue:
+            if policy.privileged:
+                obs["privileged"] = {"scene": env.scene(), "task": instance}
+            queue = list(as_action_rows(policy.act(obs)))
+        action = queue.pop(0)
+        recorder.add(obs, action)
+        obs = env.step(action)
+        step += 1
+        if task.success(instance.params, initial, env.scene()):
+            result.success, result.steps = True, step
+            return result, obs
+    result.steps = step
+    result.reason = f"timeout: no success within {max_steps} steps"
+    return result, obs
+
+
+def run_episode(
+    task_name: str,
+    seed: int,
+    policy: Policy,
+    *,
+    paraphrase: bool = False,
+    image_size: int | None = None,
+    video_path: str | Path | None = None,
+    keep_trajectory: bool = False,
+    max_steps: int | None = None,
+    scenario: Scenario | None = None,
+) -> EpisodeResult:
+    """One episode of `task_name` from the initial state drawn with `seed`.
+
+    A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
+    never escapes. `image_size` None renders no images unless the policy uses them or a video is
+    recorded (then 224).
+    """
+    task = get_task(task_name)
+    if image_size is None and (policy.uses_images or video_path is not None):
+        image_size = 224
+    env = shared_env(image_size, scenario)
+    rng = np.random.default_rng(seed)
+    spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase)
+    recorder = _Recorder(keep_trajectory, video_path, env.action_space.control_rate_hz)
+    policy_seed = int(rng.integers(2**31))
+    try:
+        obs = env.reset(spec)
+        result, obs = _run_subtask(env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder)
+        recorder.add(obs, None)
+    except Exception as error:  # noqa: BLE001 - any failure is this episode's failure, the run goes on
+        _log.warning("episode %s seed %d failed: %s", task_name, seed, error)
+        result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, env.step_index)
+        result.reason = f"{type(error).__name__}: {error}"
+    result.seed = seed
+    result.trajectory = recorder.trajectory
+    try:
+        recorder.finish()
+    except Exception as error:  # noqa: BLE001 - a video that cannot be written does not fail the episode
+        _log.warning("could not write video %s: %s", video_path, error)
+    return result
+
+
+def run_chain(
+    seed: int,
+    policy: Policy,
+    *,
+    length: int = CHAIN_LENGTH,
+    paraphrase: bool = False,
+    image_size: int | None = None,
+    video_path: str | Path | None = None,
+    scenario: Scenario | None = None,
+) -> ChainResult:
+    """A chain of `length` tasks from one initial state, stopping at the first failure."""
+    if image_size is None and (policy.uses_images or video_path is not None):
+        image_size = 224
+    env = shared_env(image_size, scenario)
+    rng = np.random.default_rng(seed)
+    spec = sample_chain_scene(rng, env.layout())
+    recorder = _Recorder(False, video_path, env.action_space.control_rate_hz)
+    result = ChainResult(seed, 0, [])
+    used: set[str] = set()
+    try:
+        obs = env.reset(spec)
+        for _ in range(length):
+            instance = next_chain_task(env.scene(), rng, used, paraphrase=paraphrase)
+            if instance is None:
+                result.reason = "no task's preconditions hold (chain generator)"
+                break
+            used.add(instance.task)
+            sub, obs = _run_subtask(
+                env, obs, policy, instance, int(rng.integers(2**31)), get_task(instance.task).max_steps, recorder
+            )
+            result.subtasks.append(sub)
+            if not sub.success:
+                result.reason = f"{instance.task}: {sub.reason}"
+                break
+            result.completed += 1
+        recorder.add(obs, None)
+    except Exception as error:  # noqa: BLE001 - as for episodes: a failure with its reason
+        _log.warning("chain seed %d failed: %s", seed, error)
+        result.reason = f"{type(error).__name__}: {error}"
+    try:
+        recorder.finish()
+    except Exception as error:  # noqa: BLE001
+        _log.warning("could not write video %s: %s", video_path, error)
+    return result

@@ -1,0 +1,211 @@
+"""The closed-loop evaluation harness: per-task success rates (with standard errors) and CALVIN's
+Avg. Len over chains of five tasks, for the oracle, the random baseline or a learned policy.
+
+Episode i of task T uses the seed `derive_seed(seed, T, i)` and chain j `derive_seed(seed, "chain", j)`,
+so a run with `workers` processes gives exactly the results of a serial run with the same seed.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+from trivla_drake.tasks.suite import get_task
+
+_POLICY_CACHE: dict[str, object] = {}
+
+
+@dataclass
+class EvalConfig:
+    """What `evaluate` runs."""
+
+    # 'oracle', 'random' or a checkpoint path.
+    policy: str = "oracle"
+    # Task names (all tasks by default).
+    tasks: list[str] = field(default_factory=list)
+    # Episodes per task.
+    episodes: int = 10
+    # Base seed of every episode's and chain's randomness.
+    seed: int = 0
+    # Chains of five tasks to run (0: none).
+    chains: int = 0
+    # Instructions from the held-out paraphrases instead of the training templates.
+    paraphrases: bool = False
+    # Processes to run episodes in (1: in this process).
+    workers: int = 1
+    # Folder for one mp4 per episode / chain (None: no videos).
+    record_dir: str | None = None
+    # Image size for policies that look (None: 224 when images are needed, else no rendering).
+    image_size: int | None = None
+    # Cap on the steps of every episode (None: each task's own max_steps); for quick runs.
+    max_steps: int | None = None
+
+    def validate(self) -> None:
+        if not self.tasks and self.chains <= 0:
+            raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
+        for name in self.tasks:
+            get_task(name)
+        if self.episodes < 0 or self.chains < 0:
+            raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
+        if self.workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {self.workers}")
+
+
+def _policy(spec: str):
+    from trivla_drake.eval.policies import load_policy
+
+    if spec not in _POLICY_CACHE:
+        _POLICY_CACHE[spec] = load_policy(spec)
+    return _POLICY_CACHE[spec]
+
+
+def _run_job(config: EvalConfig, job: tuple) -> dict:
+    """One episode or chain; top level so that worker processes can run it."""
+    from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
+
+    policy = _policy(config.policy)
+    kind, name, index = job
+    video = None
+    if config.record_dir is not None:
+        video = Path(config.record_dir) / (f"{name}-{index:03d}.mp4" if kind == "episode" else f"chain-{index:03d}.mp4")
+    if kind == "episode":
+        result = run_episode(
+            name,
+            derive_seed(config.seed, name, index),
+            policy,
+            paraphrase=config.paraphrases,
+            image_size=config.image_size,
+            video_path=video,
+            max_steps=config.max_steps,
+        )
+        return result.to_dict()
+    return run_chain(
+        derive_seed(config.seed, "chain", index),
+        policy,
+        paraphrase=config.paraphrases,
+        image_size=config.image_size,
+        video_path=video,
+    ).to_dict()
+
+
+def _worker_init() -> None:
+    import logging
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+
+
+def run_jobs(config: EvalConfig, jobs: list[tuple], *, progress: bool, description: str) -> list[dict]:
+    """Results of `jobs` in order, run in `config.workers` processes."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(jobs), desc=description, disable=not progress, unit="ep")
+    results: list[dict | None] = [None] * len(jobs)
+    try:
+        if config.workers == 1 or len(jobs) <= 1:
+            for i, job in enumerate(jobs):
+                results[i] = _run_job(config, job)
+                bar.update(1)
+        else:
+            with ProcessPoolExecutor(
+                max_workers=config.workers, mp_context=get_context("spawn"), initializer=_worker_init
+            ) as pool:
+                futures = {pool.submit(_run_job, config, job): i for i, job in enumerate(jobs)}
+                from concurrent.futures import as_completed
+
+                for future in as_completed(futures):
+                    results[futures[future]] = future.result()
+                    bar.update(1)
+    finally:
+        bar.close()
+    return results  # type: ignore[return-value]
+
+
+def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
+    """The JSON-able report: per-task rates with standard errors, their average, chain Avg. Len."""
+    tasks: dict[str, dict] = {}
+    for name in config.tasks:
+        mine = [e for e in episodes if e["task"] == name]
+        n = len(mine)
+        successes = sum(e["success"] for e in mine)
+        rate = successes / n if n else 0.0
+        tasks[name] = {
+            "success_rate": rate,
+            "stderr": math.sqrt(rate * (1 - rate) / n) if n else 0.0,
+            "episodes": n,
+            "successes": successes,
+            "failures": [
+                {"seed": e["seed"], "instruction": e["instruction"], "reason": e["reason"]}
+                for e in mine
+                if not e["success"]
+            ],
+        }
+    report: dict = {
+        "policy": config.policy,
+        "seed": config.seed,
+        "paraphrases": config.paraphrases,
+        "episodes_per_task": config.episodes if config.tasks else 0,
+        "average_success": (sum(t["success_rate"] for t in tasks.values()) / len(tasks)) if tasks else None,
+        "tasks": tasks,
+    }
+    if chains:
+        completed = [c["completed"] for c in chains]
+        n = len(completed)
+        mean = sum(completed) / n
+        var = sum((c - mean) ** 2 for c in completed) / n
+        report["chain_avg_len"] = mean
+        report["chain_avg_len_stderr"] = math.sqrt(var / n)
+        report["chains"] = {
+            "count": n,
+            # CALVIN's table: the fraction of chains that completed at least k tasks, k = 1..5.
+            "completed_at_least": [sum(c >= k for c in completed) / n for k in range(1, 6)],
+            "failures": [
+                {"seed": c["seed"], "completed": c["completed"], "reason": c["reason"]} for c in chains if c["reason"]
+            ],
+        }
+    report["config"] = {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
+    return report
+
+
+def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
+    """Run the episodes and chains of `config` and return the report (see `summarize`)."""
+    config.validate()
+    _policy(config.policy)  # fail early (unknown policy, no checkpoint loader) before any work
+    jobs = [("episode", name, i) for i in range(config.episodes) for name in config.tasks]
+    episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}") if jobs else []
+    chain_jobs = [("chain", "chain", j) for j in range(config.chains)]
+    chains = run_jobs(config, chain_jobs, progress=progress, description="chains") if chain_jobs else []
+    return summarize(config, episodes, chains)
+
+
+def format_markdown(report: dict) -> str:
+    """The report as a Markdown table (one row per task, then the average and chains)."""
+    lines = [
+        f"policy: {report['policy']}, seed {report['seed']}"
+        + (", held-out paraphrases" if report["paraphrases"] else ""),
+    ]
+    if report["tasks"]:
+        lines += ["", "| task | success | stderr | episodes |", "| --- | --- | --- | --- |"]
+        for name, row in report["tasks"].items():
+            lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['episodes']} |")
+        lines.append(f"| **average** | **{report['average_success']:.3f}** | | |")
+    if "chain_avg_len" in report:
+        c = report["chains"]
+        lines += [
+            "",
+            "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
+            f"| {c['count']} | " + " | ".join(f"{x:.2f}" for x in c["completed_at_least"])
+            + f" | {report['chain_avg_len']:.2f} ± {report['chain_avg_len_stderr']:.2f} |",
+        ]
+    failures = [(name, f) for name, row in report["tasks"].items() for f in row["failures"]]
+    failures += [(f"chain ({f['completed']}/5 done)", f) for f in report.get("chains", {}).get("failures", [])]
+    if failures:
+        lines += ["", "failures:"]
+        for name, f in failures[:20]:
+            lines.append(f"- {name} (seed {f['seed']}): {f['reason']}")
+        if len(failures) > 20:
+            lines.append(f"- ... {len(failures) - 20} more")
+    return "\n".join(lines)
