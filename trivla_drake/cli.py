@@ -120,6 +120,27 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _cmd_tables(args) -> int:
+    from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
+
+    checkpoints = {role: path for role, path in (("full", args.full), ("system1_3", args.system1_3),
+                                                 ("system1", args.system1), ("data10", args.data10)) if path}
+    config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
+                          seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
+                          max_steps=args.max_steps, latency_episodes=args.latency_episodes)
+    if args.tasks != "all":
+        config.tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
+    _set_torch_threads(args.threads)
+    report = make_tables(config)
+    files = write_tables(report, args.out)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(format_tables(report))
+        print("\nwritten: " + ", ".join(str(p) for p in files.values()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
@@ -156,6 +177,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_collect_parser(commands)
     add_evaluate_parser(commands)
+
+    tables = commands.add_parser("tables", help="the paper's tables for our suite (success, chains, ablation, "
+                                 "data efficiency, paraphrases, latency), Markdown + JSON + plots")
+    tables.add_argument("--full", required=True, help="checkpoint: Systems 1+2+3, all demonstrations")
+    tables.add_argument("--system1-3", help="checkpoint trained without System 2")
+    tables.add_argument("--system1", help="checkpoint trained without Systems 2 and 3")
+    tables.add_argument("--data10", help="checkpoint trained on 10%% of the demonstrations")
+    tables.add_argument("--out", required=True, help="folder for report.md, report.json and the plots")
+    tables.add_argument("--tasks", default="all")
+    tables.add_argument("--episodes", type=int, default=5, help="episodes per task and seed (default 5)")
+    tables.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (default 0,1,2)")
+    tables.add_argument("--chains", type=int, default=5, help="5-task chains per seed (default 5)")
+    tables.add_argument("--latency-episodes", type=int, default=2, help="episodes per task, latency rows")
+    tables.add_argument("--workers", type=int, default=1)
+    tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
+    tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    tables.add_argument("--json", action="store_true")
+    tables.set_defaults(run=_cmd_tables)
 
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")

@@ -1,0 +1,221 @@
+"""The paper's tables for our suite from one call: success over seeds, chains, the sub-system
+ablation (Table 4), data efficiency (Table 1 bottom), paraphrases and latency-aware simulation.
+
+Checkpoints by role (only `full` is required; a missing role leaves its rows out):
+  full        Systems 1+2+3 trained on 100% of the demonstrations
+  system1_3   trained without System 2            system1   trained without Systems 2 and 3
+  data10      Systems 1+2+3 trained on 10% of the demonstrations
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trivla_drake.eval.evaluate import EvalConfig, evaluate
+from trivla_drake.tasks.suite import TASK_NAMES
+
+ROLES = ("full", "system1_3", "system1", "data10")
+ABLATION_ROWS = (("system1", "1"), ("system1_3", "1+3"), ("full", "1+2+3"))
+
+
+@dataclass
+class TablesConfig:
+    """What `make_tables` runs; every default is the issue's minimum."""
+
+    # Checkpoint directory per role (see the module docstring).
+    checkpoints: dict[str, str] = field(default_factory=dict)
+    # Tasks (all by default).
+    tasks: list[str] = field(default_factory=lambda: list(TASK_NAMES))
+    # Episodes per task and seed.
+    episodes: int = 5
+    # Base seeds: each is a full evaluation, the spread across them is the standard error.
+    seeds: tuple[int, ...] = (0, 1, 2)
+    # 5-task chains per seed, for Avg. Len.
+    chains: int = 5
+    # Episodes per task for the latency comparison (Drake systems, slower than the harness).
+    latency_episodes: int = 2
+    # Tasks for the latency comparison.
+    latency_tasks: list[str] = field(default_factory=lambda: ["lift_block", "turn_on_light", "open_drawer"])
+    # Processes for the harness.
+    workers: int = 1
+    # Cap on steps per episode (None: each task's own).
+    max_steps: int | None = None
+
+    def validate(self) -> None:
+        unknown = sorted(set(self.checkpoints) - set(ROLES))
+        if unknown:
+            raise ValueError(f"checkpoint roles {unknown} are unknown; valid roles: {', '.join(ROLES)}")
+        if "full" not in self.checkpoints:
+            raise ValueError("checkpoints needs a 'full' entry (Systems 1+2+3 on all demonstrations)")
+        for role, path in self.checkpoints.items():
+            if not (Path(path) / "config.json").exists():
+                raise ValueError(f"checkpoints['{role}'] = {path} is not a checkpoint directory (no config.json)")
+        if not self.seeds or self.episodes < 1:
+            raise ValueError("seeds must be non-empty and episodes >= 1")
+
+
+def _mean_stderr(values: list[float]) -> tuple[float, float]:
+    array = np.asarray(values, dtype=float)
+    if len(array) < 2:
+        return float(array.mean()), 0.0
+    return float(array.mean()), float(array.std(ddof=1) / math.sqrt(len(array)))
+
+
+def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = False, chains: int = 0) -> dict:
+    reports = [
+        evaluate(EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
+                            chains=chains, paraphrases=paraphrases, workers=config.workers,
+                            max_steps=config.max_steps), progress=False)
+        for seed in config.seeds
+    ]
+    tasks = {name: dict(zip(("success_rate", "stderr"), _mean_stderr([r["tasks"][name]["success_rate"] for r in reports])))
+             for name in config.tasks}
+    result = {"tasks": tasks}
+    result["average_success"], result["average_stderr"] = _mean_stderr([r["average_success"] for r in reports])
+    if chains:
+        result["chain_avg_len"], result["chain_avg_len_stderr"] = _mean_stderr([r["chain_avg_len"] for r in reports])
+    return result
+
+
+def _model_figures(checkpoint: str, repeats: int = 5) -> dict:
+    """Parameters [M] and median latency [ms] of one full inference of a checkpoint's model."""
+    from trivla_drake.nn import load_checkpoint
+    from trivla_drake.nn.benchmark import example_observation
+
+    model = load_checkpoint(checkpoint).eval()
+    observation = example_observation(model.image_size, model.config.policy.state_dim)
+    times = []
+    for i in range(repeats + 1):
+        start = time.perf_counter()
+        model.predict_action_chunk(observation, seed=i)
+        times.append(time.perf_counter() - start)
+    return {"params_millions": sum(p.numel() for p in model.parameters()) / 1e6,
+            "latency_ms": 1e3 * float(np.median(times[1:]))}
+
+
+def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
+    from trivla_drake.eval.demo import run_trivla_demo
+    from trivla_drake.nn import load_checkpoint
+    from trivla_drake.systems.latency import LatencyModel
+
+    model = load_checkpoint(checkpoint).eval()
+    rows = {}
+    for label, latency in (("latency off", LatencyModel("zero")), ("latency measured", LatencyModel("measured"))):
+        successes, control = [], []
+        for task in config.latency_tasks:
+            max_seconds = config.max_steps / 36.0 if config.max_steps else None
+            report = run_trivla_demo(model, task, episodes=config.latency_episodes, seed=config.seeds[0],
+                                     latency=latency, max_seconds=max_seconds).as_dict()
+            successes.append(report["success_rate"])
+            control.append(report["control_hz"])
+        rows[label] = {"success_rate": float(np.mean(successes)), "control_hz": float(np.mean(control))}
+    return rows
+
+
+def make_tables(config: TablesConfig) -> dict:
+    """Run every evaluation the checkpoints allow; returns the JSON-able report."""
+    config.validate()
+    ckpt = config.checkpoints
+    report: dict = {"config": asdict(config)}
+    report["main"] = _over_seeds(config, ckpt["full"], chains=config.chains)
+    report["paraphrases"] = _over_seeds(config, ckpt["full"], paraphrases=True)
+    report["ablation"] = []
+    for role, label in ABLATION_ROWS:
+        if role not in ckpt:
+            continue
+        row = {"systems": label, **_model_figures(ckpt[role])}
+        row.update(_over_seeds(config, ckpt[role], chains=config.chains) if role != "full" else report["main"])
+        report["ablation"].append({k: row[k] for k in ("systems", "params_millions", "latency_ms", "average_success",
+                                                      "chain_avg_len", "chain_avg_len_stderr") if k in row})
+    if "data10" in ckpt:
+        report["data_efficiency"] = {"100%": report["main"]["average_success"],
+                                     "10%": _over_seeds(config, ckpt["data10"])["average_success"]}
+    report["latency"] = _latency_rows(config, ckpt["full"])
+    return report
+
+
+def format_tables(report: dict) -> str:
+    """The report as Markdown tables."""
+    main = report["main"]
+    lines = ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
+             "| --- | --- | --- |"]
+    for name, row in main["tasks"].items():
+        para = report["paraphrases"]["tasks"][name]
+        lines.append(f"| {name} | {row['success_rate']:.2f} ± {row['stderr']:.2f} | "
+                     f"{para['success_rate']:.2f} ± {para['stderr']:.2f} |")
+    lines.append(f"| **average** | **{main['average_success']:.2f} ± {main['average_stderr']:.2f}** | "
+                 f"{report['paraphrases']['average_success']:.2f} ± {report['paraphrases']['average_stderr']:.2f} |")
+    if "chain_avg_len" in main:
+        lines += ["", f"5-task chains: Avg. Len {main['chain_avg_len']:.2f} ± {main['chain_avg_len_stderr']:.2f}"]
+    if report["ablation"]:
+        lines += ["", "## Sub-system ablation (Table 4)", "", "| systems | Avg. Len | success | latency [ms] | params [M] |",
+                  "| --- | --- | --- | --- | --- |"]
+        for row in report["ablation"]:
+            lines.append(f"| {row['systems']} | {row.get('chain_avg_len', float('nan')):.2f} | "
+                         f"{row['average_success']:.2f} | {row['latency_ms']:.1f} | {row['params_millions']:.2f} |")
+    if "data_efficiency" in report:
+        d = report["data_efficiency"]
+        lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |",
+                  f"| 100% | {d['100%']:.2f} |", f"| 10% | {d['10%']:.2f} |"]
+    lines += ["", "## Latency-aware simulation", "", "| simulation | success | control Hz (sim time) |", "| --- | --- | --- |"]
+    for label, row in report["latency"].items():
+        lines.append(f"| {label} | {row['success_rate']:.2f} | {row['control_hz']:.1f} |")
+    return "\n".join(lines)
+
+
+def plot_tables(report: dict, out_dir: Path) -> list[Path]:
+    """Bar charts: per-task success, and the ablation; returns the PNG paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    names = list(report["main"]["tasks"])
+    fig, ax = plt.subplots(figsize=(10, 4))
+    x = np.arange(len(names))
+    for offset, (key, label) in enumerate((("main", "training instructions"), ("paraphrases", "held-out paraphrases"))):
+        rows = report[key]["tasks"]
+        ax.bar(x + (offset - 0.5) * 0.38, [rows[n]["success_rate"] for n in names], 0.38,
+               yerr=[rows[n]["stderr"] for n in names], label=label, capsize=2)
+    ax.set_xticks(x, names, rotation=40, ha="right")
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("success rate")
+    ax.legend()
+    fig.tight_layout()
+    paths.append(out_dir / "per_task_success.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+    if report["ablation"]:
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        rows = report["ablation"]
+        ax.bar([r["systems"] for r in rows], [r.get("chain_avg_len", 0.0) for r in rows],
+               yerr=[r.get("chain_avg_len_stderr", 0.0) for r in rows], capsize=3, color="tab:orange")
+        for i, r in enumerate(rows):
+            ax.text(i, 0.05, f"{r['latency_ms']:.0f} ms\n{r['params_millions']:.1f} M", ha="center", fontsize=8)
+        ax.set_ylabel("Avg. Len (5-task chains)")
+        ax.set_ylim(0, 5)
+        ax.set_title("Sub-system ablation")
+        fig.tight_layout()
+        paths.append(out_dir / "ablation.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+    return paths
+
+
+def write_tables(report: dict, out_dir: str | Path) -> dict[str, Path]:
+    """Write report.json, report.md and the plots into `out_dir`."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {"json": out_dir / "report.json", "markdown": out_dir / "report.md"}
+    files["json"].write_text(json.dumps(report, indent=2))
+    files["markdown"].write_text(format_tables(report) + "\n")
+    for path in plot_tables(report, out_dir):
+        files[path.stem] = path
+    return files
