@@ -10,6 +10,18 @@ import pytest
 logging.getLogger("drake").setLevel(logging.ERROR)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    """Tests' models are small: threads buy nothing, and on a busy 2-core machine OpenMP threads
+    stall each other. Restored after each module."""
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
 @pytest.fixture
 def scenario():
     from trivla_drake.station.scenario import load_scenario

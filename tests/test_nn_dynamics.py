@@ -12,13 +12,6 @@ from trivla_drake.nn.config import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    """Tiny models gain nothing from threads, and a busy shared CPU makes threaded ops stall; restored after."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 
 @pytest.fixture(scope="module")

@@ -13,13 +13,6 @@ from trivla_drake.nn import flow_matching
 from trivla_drake.nn.dit import sinusoidal_embedding
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    """Tiny models gain nothing from threads, and a busy shared CPU makes threaded ops stall; restored after."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 MODES = torch.tensor([[1.5, 1.5], [1.5, -1.5], [-1.5, 1.5], [-1.5, -1.5]])
 MODE_STD = 0.1

@@ -10,13 +10,6 @@ from trivla_drake.nn.policy import FlowMatchingPolicy
 from trivla_drake.nn.video_former import VideoFormer
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    """Tiny models gain nothing from threads, and a busy shared CPU makes threaded ops stall; restored after."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 
 def test_embodiment_weights_differ_and_only_the_used_slice_learns():

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
@@ -21,10 +20,7 @@ from trivla_drake.systems.trivla_policy import PolicyRates, TriVLAPolicy
 
 @pytest.fixture(scope="module")
 def tiny_model():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield TriVLA(make_config("tiny")).eval()
-    torch.set_num_threads(threads)
+    return TriVLA(make_config("tiny")).eval()
 
 
 def _closed_loop(model, rates=None, instruction="pick up the red block"):

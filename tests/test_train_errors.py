@@ -1,0 +1,109 @@
+"""Bad inputs to `trivla-drake train` give one clear error line (exit code 2) before any training:
+a truncated checkpoint, one of another preset or another action space, a corrupt resume state, a
+folder that is not a dataset."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import pytest
+import torch
+
+from trivla_drake.nn import TriVLA, make_config, save_checkpoint
+from trivla_drake.train.cli_commands import add_train_parser, config_from_args, main
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("errors")
+    data = write_synthetic_dataset(root / "data", episodes=1, length=8, image_size=16)
+    good = root / "tiny"
+    save_checkpoint(TriVLA(make_config("tiny")), str(good))
+    return {"root": root, "data": data, "good": str(good), "cache": str(root / "cache")}
+
+
+def _train(setup, out, *extra):
+    args = ["train", "--stage", "policy", "--data", setup["data"], "--out", str(out), "--steps", "2",
+            "--batch-size", "2", "--cache-dir", setup["cache"], "--no-progress", *extra]
+    return main(args)
+
+
+def _fails_before_training(setup, capsys, out, *extra) -> str:
+    assert _train(setup, out, *extra) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("trivla-drake train: error: ") and err.count("\n") == 1, err
+    assert not (out / "checkpoints").exists() and not (out / "final").exists()
+    return err
+
+
+def test_truncated_init_checkpoint(setup, capsys, tmp_path):
+    bad = tmp_path / "truncated"
+    bad.mkdir()
+    for name in ("config.json", "model.safetensors"):
+        content = open(os.path.join(setup["good"], name), "rb").read()
+        (bad / name).write_bytes(content[: len(content) // 2] if name == "model.safetensors" else content)
+    err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", str(bad))
+    assert "truncated or corrupt" in err
+
+
+def test_init_checkpoint_of_another_preset(setup, capsys, tmp_path):
+    err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", setup["good"], "--preset", "cpu")
+    assert "preset 'tiny'" in err and "another preset" in err
+
+
+def test_init_checkpoint_of_another_action_space(setup, capsys, tmp_path):
+    config = make_config("tiny")
+    six = dataclasses.replace(config, policy=dataclasses.replace(config.policy, action_dim=6),
+                              action_names=config.action_names[:6])
+    other = tmp_path / "six_dof"
+    save_checkpoint(TriVLA(six), str(other))
+    err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", str(other))
+    assert "6-D action space" in err and "7-D 'action'" in err and "another action space" in err
+
+
+def test_resume_with_another_preset_or_a_corrupt_state(setup, capsys, tmp_path):
+    out = tmp_path / "run"
+    assert _train(setup, out, "--preset", "tiny", "--checkpoint-every", "1") == 0
+    capsys.readouterr()
+    assert _train(setup, out, "--preset", "cpu", "--resume", "--steps", "3") == 2
+    assert "cannot resume: preset was 'tiny'" in capsys.readouterr().err
+    state = out / "final" / "training_state.pt"
+    state.write_bytes(state.read_bytes()[:100])
+    assert _train(setup, out, "--resume", "--steps", "3") == 2
+    assert "training_state.pt is truncated or corrupt" in capsys.readouterr().err
+
+
+def test_not_a_dataset_and_a_missing_init(setup, capsys, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["train", "--stage", "video", "--data", str(empty), "--out", str(tmp_path / "o"),
+                 "--preset", "tiny", "--no-progress"]) == 2
+    assert "is not a LeRobot dataset" in capsys.readouterr().err
+    err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", str(tmp_path / "nowhere"))
+    assert "not a checkpoint directory" in err
+
+
+def test_parser_maps_every_flag_to_the_config():
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_train_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["train", "--stage", "policy", "--data", "d", "--out", "o", "--preset", "cpu",
+                              "--init", "i", "--steps", "7", "--batch-size", "3", "--lr", "0.5",
+                              "--checkpoint-every", "2", "--resume", "--seed", "9", "--workers", "1",
+                              "--fraction", "0.1", "--no-system2", "--no-system3"])
+    config = config_from_args(args)
+    assert (config.stage, config.data, config.out, config.preset, config.init) == ("policy", "d", "o", "cpu", "i")
+    assert (config.steps, config.batch_size, config.lr, config.checkpoint_every) == (7, 3, 0.5, 2)
+    assert (config.resume, config.seed, config.workers, config.fraction) == (True, 9, 1, 0.1)
+    assert not config.use_system2 and not config.use_system3

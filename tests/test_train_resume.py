@@ -1,0 +1,99 @@
+"""A run killed after a checkpoint (or while writing one) and resumed ends with exactly the weights
+of an uninterrupted run; checkpoints are never half-written; an existing run is never overwritten."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from trivla_drake.train import TrainConfig, train
+from trivla_drake.train import checkpoints as ckpt
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("resume")
+    return {"data": write_synthetic_dataset(root / "data", episodes=2, length=16, image_size=16),
+            "cache": str(root / "cache")}
+
+
+class Killed(Exception):
+    pass
+
+
+def _config(stage, out, data, **kw):
+    return TrainConfig(stage=stage, out=str(out), data=None if stage == "vlm" else data["data"], preset="tiny",
+                       steps=6, batch_size=2, checkpoint_every=2, cache_dir=data["cache"], progress=False,
+                       warmup_steps=1, lr=1e-3, future_stride=2, vqa_scenes=3, vqa_questions_per_scene=3,
+                       log_every=1, **kw)
+
+
+def _log(run):
+    return [(entry["step"], entry["loss"]) for entry in map(json.loads, open(run / "log.jsonl"))]
+
+
+def _kill_at(step):
+    def callback(s):
+        if s == step:
+            raise Killed(f"killed after step {s}")
+    return callback
+
+
+@pytest.mark.parametrize("stage", ["policy", "video", "vlm"])
+def test_killed_run_resumes_to_the_uninterrupted_weights(stage, data, tmp_path):
+    reference = train(_config(stage, tmp_path / "ref", data))
+    with pytest.raises(Killed):
+        train(_config(stage, tmp_path / "run", data), step_callback=_kill_at(5))  # last checkpoint: step 4
+    assert ckpt.read_step(ckpt.latest_checkpoint(tmp_path / "run")) == 4
+    resumed = train(_config(stage, tmp_path / "run", data, resume=True))
+    assert resumed["resumed_from_step"] == 4 and resumed["steps"] == 6
+    assert resumed["weights_sha256_per_rank"] == reference["weights_sha256_per_rank"]
+    ref_opt = ckpt.load_train_state(tmp_path / "ref" / "final")["optimizer"]["state"]
+    run_opt = ckpt.load_train_state(tmp_path / "run" / "final")["optimizer"]["state"]
+    assert all(torch.equal(ref_opt[k]["exp_avg"], run_opt[k]["exp_avg"]) for k in ref_opt)
+    assert _log(tmp_path / "run") == _log(tmp_path / "ref")  # same losses, step 5 not logged twice
+
+
+def test_a_kill_while_writing_a_checkpoint_leaves_the_previous_one(data, tmp_path, monkeypatch):
+    reference = train(_config("policy", tmp_path / "ref", data))
+    real_save = torch.save
+
+    def dying_save(obj, path, *args, **kwargs):
+        if isinstance(obj, dict) and obj.get("step") == 4:
+            raise Killed("killed while writing step 4")
+        return real_save(obj, path, *args, **kwargs)
+
+    monkeypatch.setattr(ckpt.torch, "save", dying_save)
+    with pytest.raises(Killed):
+        train(_config("policy", tmp_path / "run", data))
+    monkeypatch.setattr(ckpt.torch, "save", real_save)
+    assert [step for step, _ in ckpt.list_checkpoints(tmp_path / "run")] == [2]
+    assert not [p for p in (tmp_path / "run" / "checkpoints").iterdir() if p.name.startswith(".tmp")]
+    resumed = train(_config("policy", tmp_path / "run", data, resume=True))
+    assert resumed["resumed_from_step"] == 2
+    assert resumed["weights_sha256_per_rank"] == reference["weights_sha256_per_rank"]
+
+
+def test_existing_runs_need_resume_and_the_same_settings(data, tmp_path):
+    train(_config("policy", tmp_path / "run", data, keep_checkpoints=1))
+    assert [step for step, _ in ckpt.list_checkpoints(tmp_path / "run")] == [6]  # older ones pruned
+    with pytest.raises(ValueError, match="already holds a training run"):
+        train(_config("policy", tmp_path / "run", data))
+    with pytest.raises(ValueError, match="lr was 0.001"):
+        train(_config("policy", tmp_path / "run", data, resume=True).__class__(
+            **{**_config("policy", tmp_path / "run", data, resume=True).to_dict(), "lr": 5e-4}))
+    more = train(_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).__class__(
+        **{**_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).to_dict(), "steps": 8}))
+    assert more["resumed_from_step"] == 6 and more["steps"] == 8
+    assert ckpt.read_step(tmp_path / "run" / "final") == 8

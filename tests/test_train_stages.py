@@ -1,0 +1,143 @@
+"""The three stages end to end on the tiny preset: each trains only its system, chains through
+--init, writes a final checkpoint `load_checkpoint` reads, and the policy stage carries the dataset's
+normalisation and computes System 2/3 features once."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.nn import TriVLA, load_checkpoint, make_config
+from trivla_drake.train import TrainConfig, train
+from trivla_drake.train.datasets import select_episodes
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """video -> vlm -> policy on a 3-episode synthetic dataset."""
+    root = tmp_path_factory.mktemp("stages")
+    data = write_synthetic_dataset(root / "data", episodes=3, length=24)
+    common = dict(preset="tiny", batch_size=4, checkpoint_every=10, cache_dir=str(root / "cache"), progress=False,
+                  warmup_steps=2, lr=1e-3, log_every=1)
+    video = train(TrainConfig(stage="video", data=data, out=str(root / "video"), steps=20, future_stride=3, **common))
+    vlm = train(TrainConfig(stage="vlm", out=str(root / "vlm"), init=video["final_checkpoint"], steps=20,
+                            vqa_scenes=10, vqa_questions_per_scene=4, **common))
+    policy = train(TrainConfig(stage="policy", data=data, out=str(root / "policy"), init=vlm["final_checkpoint"],
+                               steps=20, **common))
+    return {"root": root, "data": data, "common": common, "video": video, "vlm": vlm, "policy": policy}
+
+
+def _weights(model: TriVLA, prefix: str) -> dict[str, torch.Tensor]:
+    return {k: v for k, v in model.state_dict().items() if k.startswith(prefix)}
+
+
+def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def _losses(run_dir) -> list[float]:
+    return [json.loads(line)["loss"] for line in open(run_dir / "log.jsonl")]
+
+
+def test_video_stage_trains_only_system3_unet(runs):
+    fresh = TriVLA(make_config("tiny", init_seed=0))
+    video = load_checkpoint(runs["video"]["final_checkpoint"])
+    assert not _same(_weights(video, "dynamics.unet."), _weights(fresh, "dynamics.unet."))
+    for frozen in ("dynamics.vae.", "dynamics.text_encoder.", "vision_language.", "policy."):
+        assert _same(_weights(video, frozen), _weights(fresh, frozen)), frozen
+    losses = _losses(runs["root"] / "video")
+    assert len(losses) == 20 and np.mean(losses[-5:]) < np.mean(losses[:5])
+    assert runs["video"]["future_stride"] == 3 and runs["video"]["samples"] == 3 * 2 * (24 - 6)
+
+
+def test_vlm_stage_trains_only_system2_and_reports_vqa_accuracy(runs):
+    video = load_checkpoint(runs["video"]["final_checkpoint"])
+    vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
+    assert not _same(_weights(vlm, "vision_language."), _weights(video, "vision_language."))
+    for frozen in ("dynamics.", "policy."):
+        assert _same(_weights(vlm, frozen), _weights(video, frozen)), frozen
+    losses = _losses(runs["root"] / "vlm")
+    assert np.mean(losses[-5:]) < np.mean(losses[:5])
+    summary = runs["vlm"]
+    assert summary["vqa_eval_questions"] > 0 and 0.0 <= summary["vqa_accuracy"] <= 1.0
+
+
+def test_policy_stage_trains_system1_with_the_dataset_normalisation(runs):
+    vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
+    policy = load_checkpoint(runs["policy"]["final_checkpoint"])
+    assert not _same(_weights(policy, "policy."), _weights(vlm, "policy."))
+    for frozen in ("vision_language.", "dynamics."):
+        assert _same(_weights(policy, frozen), _weights(vlm, frozen)), frozen
+    stats = LeRobotReader(runs["data"]).stats
+    norm = policy.normalization
+    assert norm.state_mean == pytest.approx(stats["observation.state"]["mean"])
+    assert norm.action_min == pytest.approx(stats["action"]["min"])
+    assert norm.action_max == pytest.approx(stats["action"]["max"])
+    meta = json.loads((runs["root"] / "policy" / "final" / "train_config.json").read_text())
+    assert meta["stage"] == "policy" and meta["init"] == runs["vlm"]["final_checkpoint"]
+
+
+def test_feature_cache_holds_system2_3_outputs_and_is_computed_once(runs, tmp_path):
+    from safetensors import safe_open
+
+    summary = runs["policy"]
+    assert summary["feature_shards_computed"] == 3 and summary["feature_shards_reused"] == 0
+    model = load_checkpoint(runs["vlm"]["final_checkpoint"]).eval()
+    reader = LeRobotReader(runs["data"])
+    shards = sorted((runs["root"] / "cache" / "features").glob("*/*.safetensors"))
+    assert len(shards) == 3
+    with safe_open(str(shards[0]), framework="pt") as f:
+        instruction = f.metadata()["instruction"]
+        episode = reader.tasks.index(instruction)  # the synthetic tasks differ per episode
+        q_vl = f.get_tensor("q_vl")
+        assert f.get_tensor("frame_index").tolist() == list(range(24))
+        assert tuple(f.get_tensor("dynamics_static").shape) == (24, *model.dynamics.feature_shape)
+    from trivla_drake.train.datasets import resize_frames
+
+    frame = lambda cam: torch.from_numpy(resize_frames(reader.episode_video(episode, cam)[:1], 224))  # noqa: E731
+    with torch.inference_mode():
+        expected, _ = model.encode_vision_language_batch(
+            frame("observation.images.static"), frame("observation.images.wrist"), [instruction])
+    torch.testing.assert_close(q_vl[0].float(), expected[0], atol=2e-2, rtol=2e-2)  # float16 storage
+
+    again = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "again"), steps=2,
+                              init=runs["vlm"]["final_checkpoint"], **runs["common"]))
+    assert again["feature_shards_computed"] == 0 and again["feature_shards_reused"] == 3
+    assert again["feature_cache"] == summary["feature_cache"]
+
+
+def test_ablation_without_system2_keeps_system3_and_caches_other_features(runs, tmp_path):
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "no_s2"), steps=2,
+                                init=runs["vlm"]["final_checkpoint"], use_system2=False, **runs["common"]))
+    model = load_checkpoint(summary["final_checkpoint"])
+    assert model.vision_language is None and model.dynamics is not None
+    vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
+    assert _same(_weights(model, "dynamics."), _weights(vlm, "dynamics."))
+    assert summary["feature_cache"] != runs["policy"]["feature_cache"]
+    with pytest.raises(ValueError, match="cannot be switched back on"):
+        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "back_on"), steps=2,
+                          init=summary["final_checkpoint"], **runs["common"]))
+
+
+def test_fraction_keeps_a_share_of_every_task(tmp_path):
+    data = write_synthetic_dataset(tmp_path / "d", lengths=[4] * 12, image_size=16)
+    reader = LeRobotReader(data)
+    chosen = select_episodes(reader, 0.5, seed=0)
+    tasks = [reader.task_of(e) for e in chosen]
+    assert len(chosen) == 6 and all(tasks.count(t) == 2 for t in set(tasks))
+    assert select_episodes(reader, 0.5, seed=0) == chosen and select_episodes(reader, 0.5, seed=1) != chosen
+    assert len(select_episodes(reader, 0.01, seed=0)) == 3  # at least one per task
+    assert select_episodes(reader, 1.0, seed=0) == list(range(12))
