@@ -5,7 +5,6 @@ import os
 
 import numpy as np
 import pytest
-import torch
 
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
