@@ -1,1 +1,17 @@
-"""trivla_drake.train"""
+"""trivla_drake.train: the three training stages of TriVLA, in one process or under torchrun.
+
+    from trivla_drake.train import TrainConfig, train
+    train(TrainConfig(stage="video", data="demos", out="runs/video"))                         # System 3, eq. (1)
+    train(TrainConfig(stage="vlm", out="runs/vlm", init="runs/video/final"))                  # System 2, VQA
+    train(TrainConfig(stage="policy", data="demos", out="runs/policy", init="runs/vlm/final"))  # System 1, eq. (5)
+
+`config.py` TrainConfig (every field documented), `trainer.py` the loop, `checkpoints.py` atomic
+training checkpoints, `sampler.py` the resumable distributed batch sampler, `datasets.py` clips and
+policy samples, `features.py` the System 2/3 feature cache, `vqa.py` simulator-generated visual
+questions, `cli_commands.py` the `train` subcommand.
+"""
+
+from trivla_drake.train.config import TrainConfig
+from trivla_drake.train.trainer import train
+
+__all__ = ["TrainConfig", "train"]

@@ -1,0 +1,173 @@
+"""Training checkpoints: a model checkpoint (`trivla_drake.nn.save_checkpoint`: model.safetensors +
+config.json, loadable by `load_checkpoint`) plus training_state.pt (optimizer, step, every rank's RNG
+states) and train_config.json (the full `TrainConfig`).
+
+Atomicity: a checkpoint is written into a hidden temporary folder next to its final place, its files
+are flushed to disk, and the folder is renamed into place. A folder named `step-XXXXXXXX` is therefore
+always complete; a killed run leaves at most a `.tmp-*` folder, which is ignored and cleaned up.
+
+    OUT/checkpoints/step-00000500/   periodic (the newest `keep_checkpoints` are kept)
+    OUT/final/                       the last step's checkpoint
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from trivla_drake.nn.checkpoint import save_checkpoint
+from trivla_drake.train.config import TrainConfig
+
+CHECKPOINTS_DIR = "checkpoints"
+FINAL_DIR = "final"
+STATE_FILE = "training_state.pt"
+TRAIN_CONFIG_FILE = "train_config.json"
+STEP_FILE = "step.json"  # {"step": N}: read without loading the optimizer state
+_STEP_DIR = re.compile(r"^step-(\d{8})$")
+
+
+def step_dir_name(step: int) -> str:
+    """Folder name of the periodic checkpoint of `step`."""
+    return f"step-{step:08d}"
+
+
+def _fsync_tree(directory: Path) -> None:
+    for path in directory.rglob("*"):
+        if path.is_file():
+            with open(path, "rb") as f:
+                os.fsync(f.fileno())
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _publish(tmp: Path, target: Path) -> None:
+    """Renames the complete folder `tmp` to `target`, replacing an older `target` if there is one."""
+    _fsync_tree(tmp)
+    if target.exists():
+        old = target.with_name(f".old-{target.name}-{uuid.uuid4().hex[:8]}")
+        os.rename(target, old)
+        os.rename(tmp, target)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, target)
+    fd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_checkpoint(
+    target: str | os.PathLike,
+    *,
+    model: torch.nn.Module,
+    train_state: dict[str, Any],
+    config: TrainConfig,
+) -> Path:
+    """Writes a complete training checkpoint to `target` atomically; returns its path."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        save_checkpoint(model, str(tmp))
+        torch.save(train_state, tmp / STATE_FILE)
+        (tmp / STEP_FILE).write_text(json.dumps({"step": int(train_state["step"])}))
+        config.save(str(tmp / TRAIN_CONFIG_FILE))
+        _publish(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
+def copy_checkpoint(source: str | os.PathLike, target: str | os.PathLike) -> Path:
+    """Copies a complete checkpoint folder to `target` atomically."""
+    source, target = Path(source), Path(target)
+    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        shutil.copytree(source, tmp)
+        _publish(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
+def list_checkpoints(out: str | os.PathLike) -> list[tuple[int, Path]]:
+    """(step, folder) of every complete periodic checkpoint in `out`, oldest first."""
+    root = Path(out) / CHECKPOINTS_DIR
+    if not root.is_dir():
+        return []
+    found = []
+    for path in root.iterdir():
+        match = _STEP_DIR.match(path.name)
+        if match and path.is_dir():
+            found.append((int(match.group(1)), path))
+    return sorted(found)
+
+
+def latest_checkpoint(out: str | os.PathLike) -> Path | None:
+    """The newest complete checkpoint of a run (periodic or final), or None."""
+    candidates = [(step, path) for step, path in list_checkpoints(out)]
+    final = Path(out) / FINAL_DIR
+    if (final / STEP_FILE).is_file():
+        candidates.append((read_step(final), final))
+    if not candidates:
+        return None
+    return max(candidates, key=lambda c: (c[0], c[1].name == FINAL_DIR))[1]
+
+
+def read_step(directory: str | os.PathLike) -> int:
+    """The step a checkpoint was written at."""
+    path = Path(directory) / STEP_FILE
+    try:
+        return int(json.loads(path.read_text())["step"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path} is missing or unreadable: {exc}") from exc
+
+
+def prune_checkpoints(out: str | os.PathLike, keep: int) -> None:
+    """Deletes all but the newest `keep` periodic checkpoints and leftover temporary folders."""
+    found = list_checkpoints(out)
+    for _, path in found[: max(0, len(found) - keep)]:
+        shutil.rmtree(path, ignore_errors=True)
+    root = Path(out) / CHECKPOINTS_DIR
+    if root.is_dir():
+        for path in root.iterdir():
+            if path.name.startswith((".tmp-", ".old-")) and f"-{os.getpid()}-" not in path.name:
+                shutil.rmtree(path, ignore_errors=True)
+
+
+def load_train_state(directory: str | os.PathLike) -> dict[str, Any]:
+    """training_state.pt of a checkpoint; ValueError when missing, truncated or corrupt."""
+    path = Path(directory) / STATE_FILE
+    if not path.is_file():
+        raise ValueError(f"{directory} is not a training checkpoint: {STATE_FILE} is missing")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises various errors for truncated or corrupt files
+        raise ValueError(f"{path} is truncated or corrupt: {exc}") from exc
+    if not isinstance(state, dict) or "step" not in state:
+        raise ValueError(f"{path} is not a training state (no 'step')")
+    return state
+
+
+def load_train_config(directory: str | os.PathLike) -> TrainConfig:
+    """train_config.json of a checkpoint."""
+    path = Path(directory) / TRAIN_CONFIG_FILE
+    if not path.is_file():
+        raise ValueError(f"{directory} is not a training checkpoint: {TRAIN_CONFIG_FILE} is missing")
+    try:
+        return TrainConfig.from_dict(json.loads(path.read_text()))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path} is unreadable: {exc}") from exc

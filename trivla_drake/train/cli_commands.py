@@ -1,0 +1,144 @@
+"""The `train` subcommand, for `trivla_drake.cli` to register:
+
+    from trivla_drake.train.cli_commands import add_train_parser
+    add_train_parser(commands)      # commands = parser.add_subparsers(...)
+
+    trivla-drake train --stage video  --data DEMOS --out runs/video
+    trivla-drake train --stage vlm    --out runs/vlm    --init runs/video/final
+    trivla-drake train --stage policy --data DEMOS --out runs/policy --init runs/vlm/final
+    torchrun --nproc_per_node 2 -m trivla_drake.train.cli_commands train --stage policy ...
+
+`run_train(args)` returns the exit code (user errors print one line and return 2).
+`python -m trivla_drake.train.cli_commands train ...` runs it without cli.py (and under torchrun).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads on shared cores
+
+
+def _user_errors():
+    from trivla_drake.data.lerobot import NotADatasetError
+
+    return (ValueError, NotADatasetError, FileNotFoundError, FloatingPointError)
+
+
+def config_from_args(args: argparse.Namespace):
+    """The TrainConfig the command line asks for."""
+    from trivla_drake.train.config import TrainConfig
+
+    return TrainConfig(
+        stage=args.stage,
+        out=args.out,
+        data=args.data,
+        preset=args.preset,
+        init=args.init,
+        steps=args.steps,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        checkpoint_every=args.checkpoint_every,
+        resume=args.resume,
+        seed=args.seed,
+        workers=args.workers,
+        fraction=args.fraction,
+        use_system2=not args.no_system2,
+        use_system3=not args.no_system3,
+        cache_dir=args.cache_dir,
+        feature_stride=args.feature_stride,
+        feature_dtype=args.feature_dtype,
+        vqa_scenes=args.vqa_scenes,
+        clip_seconds=args.clip_seconds,
+        future_stride=args.future_stride,
+        keep_checkpoints=args.keep_checkpoints,
+        threads=args.threads,
+        precision=args.precision,
+        progress=not args.no_progress,
+    )
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """`trivla-drake train`: one training stage; prints the summary."""
+    from trivla_drake.train.trainer import train
+
+    try:
+        summary = train(config_from_args(args))
+    except _user_errors() as error:
+        print(f"trivla-drake train: error: {error}", file=sys.stderr)
+        return 2
+    if int(os.environ.get("RANK", "0")) != 0:
+        return 0
+    if args.json:
+        print(json.dumps(summary, default=str))
+    else:
+        print("| train | value |\n| --- | --- |")
+        for key, value in summary.items():
+            shown = f"{value:.4g}" if isinstance(value, float) else value
+            print(f"| {key} | {shown} |")
+    return 0
+
+
+def add_train_parser(commands) -> argparse.ArgumentParser:
+    """Register `train` on an argparse subparsers object."""
+    parser = commands.add_parser(
+        "train", help="train one TriVLA stage: video (System 3), vlm (System 2) or policy (System 1)",
+        description="Train one stage. Run video, then vlm with --init VIDEO_OUT/final, then policy with "
+                    "--init VLM_OUT/final. Under torchrun every process trains (DDP); rank 0 writes.",
+    )
+    parser.add_argument("--stage", required=True, choices=("video", "vlm", "policy"), help="what to train")
+    parser.add_argument("--data", default=None,
+                        help="LeRobot dataset folder (video, policy); for vlm an optional folder for the "
+                             "generated visual-question set")
+    parser.add_argument("--out", required=True, help="run folder: checkpoints/, final/, log.jsonl, summary.json")
+    parser.add_argument("--preset", default=None, help="model preset: tiny, cpu, paper (default: --init's, else cpu)")
+    parser.add_argument("--init", default=None, metavar="CHECKPOINT_DIR",
+                        help="start from this checkpoint (the previous stage's final/); default: a fresh preset")
+    parser.add_argument("--steps", type=int, default=None, help="optimizer steps (default per stage: 3000/3000/10000)")
+    parser.add_argument("--batch-size", type=int, default=None,
+                        help="samples per process per step (default per stage: video 8, vlm 8, policy 32)")
+    parser.add_argument("--lr", type=float, default=None, help="peak learning rate (default: video 1e-4, vlm 3e-4, "
+                        "policy 1e-4)")
+    parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
+    parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
+    parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
+    parser.add_argument("--workers", type=int, default=0, help="DataLoader workers per process (default 0)")
+    parser.add_argument("--fraction", type=float, default=1.0,
+                        help="fraction of each task's episodes to train on (0.1: the 10%%-data experiment)")
+    parser.add_argument("--no-system2", action="store_true", help="ablation: a model without System 2")
+    parser.add_argument("--no-system3", action="store_true", help="ablation: a model without System 3")
+    parser.add_argument("--cache-dir", default=None,
+                        help="folder for decoded clips, the VQA set and System 2/3 features "
+                             "(default ~/.cache/trivla_drake/train)")
+    parser.add_argument("--feature-stride", type=int, default=1,
+                        help="policy: cache and train on every N-th frame (default 1: all)")
+    parser.add_argument("--feature-dtype", default="float16", choices=("float16", "bfloat16", "float32"),
+                        help="policy: dtype of cached features (default float16)")
+    parser.add_argument("--clip-seconds", type=float, default=1.0,
+                        help="video: a clip (current + future frames) spans about this long (default 1 s)")
+    parser.add_argument("--future-stride", type=int, default=None,
+                        help="video: frames between clip frames (default: from --clip-seconds and the fps)")
+    parser.add_argument("--keep-checkpoints", type=int, default=2, help="periodic checkpoints kept (default 2)")
+    parser.add_argument("--vqa-scenes", type=int, default=500, help="vlm: scenes rendered for the VQA set")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
+    parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    parser.set_defaults(run=run_train)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Standalone entry point with just `train` (also what torchrun runs with -m)."""
+    parser = argparse.ArgumentParser(prog="trivla-drake")
+    commands = parser.add_subparsers(dest="command", required=True)
+    add_train_parser(commands)
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

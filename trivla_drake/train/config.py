@@ -1,0 +1,208 @@
+"""The training configuration: one dataclass for the three stages, saved with every checkpoint.
+
+Stages (run in this order; each starts from the previous one's checkpoint with `init`):
+  video   System 3 fine-tuned on the dataset's clips with eq. (1)
+  vlm     System 2 pretrained on simulator-generated visual questions (next-token loss on answers)
+  policy  System 1 trained with eq. (5) (flow matching), Systems 2 and 3 frozen, their features cached
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from typing import Any
+
+STAGES = ("video", "vlm", "policy")
+
+# Per-stage defaults for the fields left None (chosen for the `cpu` preset on a 2-core machine;
+# see the measured step times in trivla_drake/train/README.md).
+STAGE_DEFAULTS: dict[str, dict[str, Any]] = {
+    "video": {"batch_size": 8, "lr": 1e-4, "steps": 3000},
+    "vlm": {"batch_size": 8, "lr": 3e-4, "steps": 3000},
+    "policy": {"batch_size": 32, "lr": 1e-4, "steps": 10000},
+}
+
+# Fields that may differ between a run and the run it resumes (they do not change what is learned).
+RESUMABLE_CHANGES = frozenset(
+    {"steps", "checkpoint_every", "keep_checkpoints", "resume", "workers", "progress", "log_every", "threads",
+     "cache_dir", "dist_timeout_minutes", "out", "data", "init", "vqa_eval_questions"}
+)
+
+
+def default_cache_dir() -> str:
+    """$XDG_CACHE_HOME/trivla_drake/train (default ~/.cache/trivla_drake/train)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "trivla_drake", "train")
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run depends on. Fields left None get their stage's default in `resolved()`."""
+
+    # Which system to train: "video" (System 3), "vlm" (System 2) or "policy" (System 1).
+    stage: str
+    # Output folder: checkpoints/step-XXXXXXXX/ (periodic), final/ (the last), log.jsonl, summary.json.
+    out: str
+    # LeRobot dataset folder (video and policy stages). For the vlm stage: an optional folder for the
+    # generated visual-question set (default: a folder in `cache_dir` named by the generation settings).
+    data: str | None = None
+    # Model preset (tiny, cpu, paper) of a fresh model; None: the --init checkpoint's preset, else "cpu".
+    # Given together with `init`, it must match the checkpoint's preset.
+    preset: str | None = None
+    # Checkpoint folder to start from (the previous stage's final/); None: a fresh `preset` model.
+    init: str | None = None
+    # Optimizer steps in all (a resumed run continues up to this count). None: the stage's default.
+    steps: int | None = None
+    # Samples per process per step (the effective batch is batch_size x world size). None: stage default.
+    batch_size: int | None = None
+    # Peak learning rate of AdamW. None: the stage's default.
+    lr: float | None = None
+    # AdamW decoupled weight decay.
+    weight_decay: float = 0.01
+    # AdamW beta1.
+    beta1: float = 0.9
+    # AdamW beta2.
+    beta2: float = 0.95
+    # Linear warm-up steps from 0 to `lr` (capped at a tenth of `steps` for short runs).
+    warmup_steps: int = 100
+    # After warm-up the learning rate follows a cosine from `lr` down to lr * min_lr_ratio at `steps`.
+    min_lr_ratio: float = 0.1
+    # Gradient norm clipping (0 turns it off).
+    grad_clip: float = 1.0
+    # Write a checkpoint every this many steps (and always at the last step).
+    checkpoint_every: int = 500
+    # Periodic checkpoints kept on disk (older ones are deleted once a newer one is complete).
+    keep_checkpoints: int = 2
+    # Continue from the newest checkpoint in `out` (model, optimizer, step, data position, RNG states).
+    resume: bool = False
+    # Seed of everything random: fresh-model initialisation, data order, diffusion/flow noise.
+    seed: int = 0
+    # DataLoader worker processes per training process (0 loads in the training process).
+    workers: int = 0
+    # Fraction of the dataset's episodes used (per task, at least one each): the 10%-data experiment.
+    fraction: float = 1.0
+    # Keep System 2 (vision-language tokens) in the model; False is the Table 4 ablation "1+3".
+    use_system2: bool = True
+    # Keep System 3 (dynamics features) in the model; False is the Table 4 ablation "1+2".
+    use_system3: bool = True
+    # Folder for data made once and reused: decoded clips, the VQA set, cached System 2/3 features.
+    # Entries are named by hashes of everything they depend on, so runs can share it. None: default_cache_dir().
+    cache_dir: str | None = None
+    # Dataset camera of System 2/3's static (third-person) view.
+    static_camera: str = "observation.images.static"
+    # Dataset camera of the wrist view.
+    wrist_camera: str = "observation.images.wrist"
+    # Policy stage: cache (and train on) every this-many-th frame of each episode.
+    feature_stride: int = 1
+    # Policy stage: dtype of cached System 2/3 features ("float16" halves the disk; "float32" is exact).
+    feature_dtype: str = "float16"
+    # Policy stage: frames per batch when computing the cached features.
+    feature_batch_size: int = 16
+    # Policy stage: seed of System 3's noise latents for the cached features (part of the cache key).
+    feature_seed: int = 0
+    # Video stage: a clip (current frame + num_frames-1 future frames) spans about this many seconds.
+    clip_seconds: float = 1.0
+    # Video stage: frames between clip frames; None: round(fps * clip_seconds / (num_frames - 1)).
+    future_stride: int | None = None
+    # vlm stage: simulator scenes rendered for the visual-question set.
+    vqa_scenes: int = 500
+    # vlm stage: questions asked about each scene.
+    vqa_questions_per_scene: int = 8
+    # vlm stage: held-out questions scored at the end of the run (multiple-choice accuracy); 0 skips it.
+    vqa_eval_questions: int = 400
+    # vlm stage: seed of the scene sampling and question choice (part of the VQA set's key).
+    vqa_seed: int = 0
+    # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
+    log_every: int = 10
+    # Show a tqdm progress bar (rank 0 only).
+    progress: bool = True
+    # torch threads per process; None leaves torch's default.
+    threads: int | None = None
+    # "fp32", or "bf16" (autocast on CUDA; ignored on CPU where bf16 matmuls are slow).
+    precision: str = "fp32"
+    # Timeout of collective operations [min] (feature caching on rank 0 can take long).
+    dist_timeout_minutes: float = 120.0
+
+    # ------------------------------------------------------------------ helpers
+
+    def resolved(self) -> "TrainConfig":
+        """A copy with the stage defaults filled in and the cache folder chosen."""
+        if self.stage not in STAGES:
+            raise ValueError(f"stage must be one of {', '.join(STAGES)}; got {self.stage!r}")
+        values = {k: v for k, v in STAGE_DEFAULTS[self.stage].items() if getattr(self, k) is None}
+        if self.cache_dir is None:
+            values["cache_dir"] = default_cache_dir()
+        return dataclasses.replace(self, **values)
+
+    def validate(self) -> None:
+        """Raises ValueError naming the field when a value is out of range (call on `resolved()`)."""
+        if self.stage not in STAGES:
+            raise ValueError(f"stage must be one of {', '.join(STAGES)}; got {self.stage!r}")
+        if not self.out:
+            raise ValueError("out (--out) is required")
+        if self.stage in ("video", "policy") and not self.data:
+            raise ValueError(f"data (--data) is required for the {self.stage} stage: a LeRobot dataset folder")
+        positive = ("steps", "batch_size", "checkpoint_every", "keep_checkpoints", "feature_stride",
+                    "feature_batch_size", "vqa_scenes", "vqa_questions_per_scene", "log_every")
+        for name in positive:
+            if getattr(self, name) is None or getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
+        if self.lr is None or not self.lr > 0:
+            raise ValueError(f"lr must be > 0; got {self.lr}")
+        if not 0 < self.fraction <= 1:
+            raise ValueError(f"fraction must be in (0, 1]; got {self.fraction}")
+        if self.vqa_eval_questions < 0:
+            raise ValueError(f"vqa_eval_questions must be >= 0; got {self.vqa_eval_questions}")
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0; got {self.workers}")
+        if self.warmup_steps < 0 or self.weight_decay < 0 or self.grad_clip < 0:
+            raise ValueError("warmup_steps, weight_decay and grad_clip must be >= 0")
+        if not 0 <= self.min_lr_ratio <= 1:
+            raise ValueError(f"min_lr_ratio must be in [0, 1]; got {self.min_lr_ratio}")
+        if self.feature_dtype not in ("float16", "bfloat16", "float32"):
+            raise ValueError(f"feature_dtype must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
+        if self.precision not in ("fp32", "bf16"):
+            raise ValueError(f"precision must be fp32 or bf16; got {self.precision!r}")
+        if self.future_stride is not None and self.future_stride < 1:
+            raise ValueError(f"future_stride must be >= 1; got {self.future_stride}")
+        if not self.clip_seconds > 0:
+            raise ValueError(f"clip_seconds must be > 0; got {self.clip_seconds}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be >= 1; got {self.threads}")
+        if self.stage == "video" and not self.use_system3:
+            raise ValueError("the video stage trains System 3: it cannot run with --no-system3")
+        if self.stage == "vlm" and not self.use_system2:
+            raise ValueError("the vlm stage trains System 2: it cannot run with --no-system2")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
+        """Inverse of `to_dict`; unknown fields raise ValueError."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise ValueError(f"training config has unknown fields {sorted(unknown)}")
+        return cls(**data)
+
+    def save(self, path: str) -> None:
+        """Writes the config as JSON."""
+        with open(path, "w") as f:
+            json.dump(self.to_dict(), f, indent=2)
+
+
+def check_resume_compatible(saved: TrainConfig, current: TrainConfig) -> None:
+    """Raises ValueError naming the first field that a resumed run may not change."""
+    for field in dataclasses.fields(TrainConfig):
+        if field.name in RESUMABLE_CHANGES:
+            continue
+        old, new = getattr(saved, field.name), getattr(current, field.name)
+        if old != new:
+            raise ValueError(
+                f"cannot resume: {field.name} was {old!r} in the run being resumed, now {new!r} "
+                "(use the same settings, or another --out for a new run)"
+            )

@@ -1,0 +1,191 @@
+"""The cache of frozen System 2 / System 3 outputs for policy training, computed once.
+
+Layout: CACHE/features/<key>/<episode fingerprint>.safetensors, one shard per episode, with
+    q_vl             (N, S, D_llm)            System 2's Q_vl of each cached frame (all S tokens valid)
+    dynamics_static  (N, T+1, C, H_p, W_p)    System 3's F_p of the static view
+    dynamics_wrist   (N, T+1, C, H_p, W_p)    ... of the wrist view
+    frame_index      (N,)                     the episode frames (every feature_stride-th)
+<key> hashes the System 2/3 weights and every setting the features depend on (image size, stride,
+dtype, noise seed, batch size), so another model or setting never reads stale features; the episode
+fingerprint hashes the episode's content. Shards are written atomically (temporary file renamed),
+so an interrupted caching run resumes with the episodes it did not finish; under torchrun the missing
+episodes are split across ranks.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.nn.trivla import TriVLA
+from trivla_drake.train.config import TrainConfig
+from trivla_drake.train.datasets import episode_fingerprint, resize_frames
+from trivla_drake.train.distributed import DistEnv
+
+FORMAT_VERSION = 1
+_DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32}
+
+
+def hash_module_weights(module: torch.nn.Module | None, hasher: Any) -> None:
+    """Feeds every parameter and buffer (name, shape, dtype, bytes) of `module` into `hasher`."""
+    if module is None:
+        hasher.update(b"<none>")
+        return
+    for name, tensor in sorted(module.state_dict().items()):
+        t = tensor.detach().to("cpu").contiguous()
+        hasher.update(f"{name}:{tuple(t.shape)}:{t.dtype};".encode())
+        hasher.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+
+
+def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
+    """Hash of System 2/3's weights and of every setting the cached features depend on."""
+    hasher = hashlib.sha256()
+    settings = {
+        "format": FORMAT_VERSION,
+        "image_size": model.image_size,
+        "feature_stride": config.feature_stride,
+        "feature_dtype": config.feature_dtype,
+        "feature_seed": config.feature_seed,
+        "feature_batch_size": config.feature_batch_size,
+        "static_camera": config.static_camera,
+        "wrist_camera": config.wrist_camera,
+        "system2": model.vision_language is not None,
+        "system3": model.dynamics is not None,
+    }
+    hasher.update(json.dumps(settings, sort_keys=True).encode())
+    hash_module_weights(model.vision_language, hasher)
+    hash_module_weights(model.dynamics, hasher)
+    return hasher.hexdigest()[:20]
+
+
+def _episode_seed(seed: int, fingerprint: str) -> int:
+    return int(hashlib.sha256(f"{seed}:{fingerprint}".encode()).hexdigest()[:15], 16)
+
+
+@torch.inference_mode()
+def compute_episode_features(
+    model: TriVLA, reader: LeRobotReader, episode: int, config: TrainConfig
+) -> dict[str, torch.Tensor]:
+    """System 2 and 3 outputs for every `feature_stride`-th frame of one episode (see module doc)."""
+    length = int(reader.episodes[episode]["length"])
+    frames_index = np.arange(0, length, config.feature_stride)
+    static = resize_frames(reader.episode_video(episode, config.static_camera)[frames_index], model.image_size)
+    wrist = resize_frames(reader.episode_video(episode, config.wrist_camera)[frames_index], model.image_size)
+    instruction = reader.task_of(episode)
+    dtype = _DTYPES[config.feature_dtype]
+    generator = torch.Generator().manual_seed(_episode_seed(config.feature_seed, episode_fingerprint(reader, episode)))
+    parts: dict[str, list[torch.Tensor]] = {}
+    for start in range(0, len(frames_index), config.feature_batch_size):
+        s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.feature_batch_size]))
+        w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.feature_batch_size]))
+        texts = [instruction] * len(s)
+        if model.vision_language is not None:
+            q_vl, mask = model.encode_vision_language_batch(s, w, texts)
+            if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
+                raise RuntimeError("unexpected padding in System 2's tokens of one episode")
+            parts.setdefault("q_vl", []).append(q_vl.float().cpu())
+        if model.dynamics is not None:
+            f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
+            parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
+            parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
+    out = {}
+    for key, chunks in parts.items():
+        full = torch.cat(chunks)
+        converted = full.to(dtype)
+        if not torch.isfinite(converted).all():
+            raise ValueError(
+                f"System {'2' if key == 'q_vl' else '3'} features of episode {episode} overflow "
+                f"{config.feature_dtype}: use feature_dtype float32 (--feature-dtype float32)"
+            )
+        out[key] = converted.contiguous()
+    out["frame_index"] = torch.from_numpy(frames_index.astype(np.int64))
+    return out
+
+
+def _save_shard(path: Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str]) -> None:
+    from safetensors.torch import save_file
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
+    save_file(tensors, str(tmp), metadata=metadata)
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _shard_is_valid(path: Path) -> bool:
+    from safetensors import safe_open
+
+    try:
+        with safe_open(str(path), framework="pt", device="cpu") as f:
+            return "frame_index" in f.keys()
+    except Exception:  # noqa: BLE001 - a corrupt shard is recomputed
+        return False
+
+
+def ensure_feature_cache(
+    model: TriVLA,
+    reader: LeRobotReader,
+    episodes: list[int],
+    config: TrainConfig,
+    env: DistEnv,
+    *,
+    progress: bool = True,
+) -> tuple[dict[int, Path], dict[str, Any]]:
+    """Computes the missing shards (split across ranks), waits for all ranks, and returns
+    episode -> shard path and a summary (folder, computed / reused shards, bytes per episode)."""
+    from tqdm import tqdm
+
+    if model.vision_language is None and model.dynamics is None:
+        return {}, {"feature_cache": None}
+    key = feature_cache_key(model, config)
+    root = Path(config.cache_dir) / "features" / key
+    shards = {e: root / f"{episode_fingerprint(reader, e)}.safetensors" for e in episodes}
+    missing = [e for e in episodes if not (shards[e].is_file() and _shard_is_valid(shards[e]))]
+    missing = env.broadcast_object(missing)  # rank 0's list, so that every rank splits the same work
+    mine = missing[env.rank :: env.world_size]
+    if env.is_main:
+        root.mkdir(parents=True, exist_ok=True)
+        info = {
+            "key": key,
+            "preset": model.config.preset,
+            "system2": model.vision_language is not None,
+            "system3": model.dynamics is not None,
+            "feature_stride": config.feature_stride,
+            "feature_dtype": config.feature_dtype,
+            "feature_seed": config.feature_seed,
+            "image_size": model.image_size,
+        }
+        (root / "cache_info.json").write_text(json.dumps(info, indent=2))
+    was_training = model.training
+    model.eval()
+    bar = tqdm(total=len(mine), desc="caching System 2/3 features", unit="ep",
+               disable=not (progress and env.is_main) or not mine)
+    try:
+        for episode in mine:
+            tensors = compute_episode_features(model, reader, episode, config)
+            _save_shard(shards[episode], tensors, {"instruction": reader.task_of(episode), "key": key})
+            bar.update(1)
+    finally:
+        bar.close()
+        model.train(was_training)
+    env.barrier()
+    sample = episodes[:50]
+    total_bytes = sum(shards[e].stat().st_size for e in sample)
+    cached_frames = sum(-(-int(reader.episodes[e]["length"]) // config.feature_stride) for e in sample)
+    summary = {
+        "feature_cache": str(root),
+        "feature_shards_computed": len(missing),
+        "feature_shards_reused": len(episodes) - len(missing),
+        "feature_cache_bytes_per_episode": total_bytes / max(1, len(sample)),
+        "feature_cache_bytes_per_frame": total_bytes / max(1, cached_frames),
+    }
+    return shards, summary

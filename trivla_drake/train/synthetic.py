@@ -1,0 +1,71 @@
+"""A small synthetic LeRobot dataset with the collector's features (Panda state, 7-D end-effector
+actions, static and wrist cameras), for tests, examples and timing runs without the simulator.
+
+Each episode shows a coloured square moving across a plain background (so clips have motion); the
+state follows smooth curves and the action is the state's next change plus a gripper command, so a
+policy has something learnable.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from trivla_drake.data.lerobot import LeRobotWriter, vector_feature, video_feature
+from trivla_drake.nn.config import EE_DELTA_ACTION_NAMES, PANDA_STATE_NAMES
+
+CAMERAS = ("observation.images.static", "observation.images.wrist")
+TASKS = ("lift the red block", "open the drawer", "switch the lamp on")
+
+
+def synthetic_features(image_size: int, fps: float) -> dict[str, dict]:
+    """info.json features of the synthetic dataset (the collector's, less the tcp pose)."""
+    return {
+        CAMERAS[0]: video_feature(image_size, image_size, fps),
+        CAMERAS[1]: video_feature(image_size, image_size, fps),
+        "observation.state": vector_feature(list(PANDA_STATE_NAMES)),
+        "action": vector_feature(list(EE_DELTA_ACTION_NAMES)),
+    }
+
+
+def _frames(length: int, size: int, rng: np.random.Generator, color: np.ndarray) -> np.ndarray:
+    frames = np.empty((length, size, size, 3), dtype=np.uint8)
+    frames[:] = rng.integers(40, 90, size=3, dtype=np.uint8)
+    side = max(2, size // 4)
+    start, end = rng.uniform(0, size - side, size=2), rng.uniform(0, size - side, size=2)
+    for t in range(length):
+        x, y = (start + (end - start) * t / max(1, length - 1)).astype(int)
+        frames[t, y : y + side, x : x + side] = color
+    return frames
+
+
+def write_synthetic_dataset(
+    root: str | os.PathLike,
+    *,
+    episodes: int = 3,
+    length: int = 24,
+    image_size: int = 32,
+    fps: float = 36.0,
+    seed: int = 0,
+    lengths: list[int] | None = None,
+) -> str:
+    """Writes `episodes` episodes (of `length` frames, or `lengths`) to `root`; returns the path."""
+    if os.path.exists(os.path.join(root, "meta", "info.json")):
+        raise ValueError(f"{root} already holds a dataset; write the synthetic one elsewhere")
+    rng = np.random.default_rng(seed)
+    writer = LeRobotWriter(root, fps=fps, features=synthetic_features(image_size, fps))
+    lengths = list(lengths) if lengths is not None else [length] * episodes
+    for i, n in enumerate(lengths):
+        color = np.array([[255, 40, 40], [40, 200, 40], [40, 40, 255]][i % 3], dtype=np.uint8)
+        t = np.arange(n + 1)[:, None] / fps
+        phase = rng.uniform(0, 2 * np.pi, size=(1, 9))
+        q = 0.3 * np.sin(t * 2.0 + phase)  # 9 positions
+        v = np.gradient(q, axis=0) * fps
+        state = np.concatenate([q, v], axis=1)[:n].astype(np.float32)
+        action = np.zeros((n, 7), dtype=np.float32)
+        action[:, :6] = 0.01 * np.diff(q[:, :6], axis=0) * fps
+        action[:, 6] = np.where(np.arange(n) < n // 2, 1.0, -1.0)
+        videos = {CAMERAS[0]: _frames(n, image_size, rng, color), CAMERAS[1]: _frames(n, image_size, rng, 255 - color)}
+        writer.add_episode({"observation.state": state, "action": action}, TASKS[i % len(TASKS)], videos=videos)
+    return str(root)

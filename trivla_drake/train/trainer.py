@@ -1,0 +1,476 @@
+"""`train(config)`: one training stage (video, vlm or policy), in one process or under torchrun.
+
+    from trivla_drake.train import TrainConfig, train
+    summary = train(TrainConfig(stage="policy", data="data/demos", out="runs/policy", init="runs/vlm/final"))
+
+What happens, in order: the output folder is checked (an existing run needs `resume`); the model is
+built (resumed checkpoint > `init` checkpoint > fresh preset) and checked against the dataset before
+anything is computed; the stage's data is prepared once and cached (decoded clips, the generated VQA
+set, System 2/3 features); then AdamW steps with warm-up + cosine learning rate, a checkpoint every
+`checkpoint_every` steps and at the end (OUT/final, loadable by `trivla_drake.nn.load_checkpoint`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import random
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from trivla_drake.nn.checkpoint import load_checkpoint, read_checkpoint_config
+from trivla_drake.nn.config import PRESETS, make_config
+from trivla_drake.nn.trivla import TriVLA
+from trivla_drake.train import checkpoints as ckpt
+from trivla_drake.train.config import TrainConfig, check_resume_compatible
+from trivla_drake.train.distributed import DistEnv, setup_distributed, teardown_distributed
+from trivla_drake.train.features import hash_module_weights
+
+StepCallback = Callable[[int], None]
+
+
+# ---------------------------------------------------------------------------------------------
+# Model
+
+
+def _transfer_weights(source: nn.Module, target: nn.Module) -> int:
+    """Copies every tensor of `source` whose name and shape exist in `target`; returns how many."""
+    src = source.state_dict()
+    dst = target.state_dict()
+    matched = {k: v for k, v in src.items() if k in dst and dst[k].shape == v.shape}
+    target.load_state_dict(matched, strict=False)
+    return len(matched)
+
+
+def apply_ablations(model: TriVLA, use_system2: bool, use_system3: bool, where: str) -> TriVLA:
+    """`model` with Systems 2 / 3 dropped as asked (a rebuilt model that keeps every weight that still
+    fits). A system missing from `model` cannot be switched back on: ValueError."""
+    cfg = model.config
+    for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
+        if wanted and not have:
+            raise ValueError(
+                f"{where} has no {name} (it was trained without it); it cannot be switched back on: "
+                f"pass --no-system{name[-1]} or start from a checkpoint that has it"
+            )
+    if (cfg.use_system2, cfg.use_system3) == (use_system2, use_system3):
+        return model
+    new_config = dataclasses.replace(cfg, use_system2=use_system2, use_system3=use_system3)
+    tokenizers = {}
+    if use_system2:
+        tokenizers["vision_language"] = model.vision_language.tokenizer
+    if use_system3:
+        tokenizers["dynamics"] = model.dynamics.tokenizer
+    components = {k: v for k, v in model.component_configs().items()
+                  if (k == "vision_language" and use_system2) or (k == "dynamics" and use_system3)}
+    new = TriVLA(new_config, normalization=model.normalization, component_configs=components,
+                 tokenizers=tokenizers, load_pretrained=False)
+    _transfer_weights(model, new)
+    return new
+
+
+def _resolve_preset(config: TrainConfig) -> str:
+    if config.init:
+        if not Path(config.init).is_dir():
+            raise FileNotFoundError(f"--init {config.init!r} is not a checkpoint directory")
+        meta = read_checkpoint_config(config.init)
+        init_preset = meta.get("preset")
+        if config.preset is not None and config.preset != init_preset:
+            raise ValueError(
+                f"--init checkpoint {config.init!r} is preset {init_preset!r} but --preset is {config.preset!r} "
+                "(another preset): drop --preset or start from a checkpoint of that preset"
+            )
+        return init_preset
+    preset = config.preset or "cpu"
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
+    return preset
+
+
+def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
+    """The model a run starts from: the resumed checkpoint, the `init` checkpoint (with ablations
+    applied), or a fresh `preset` model initialised from `seed`."""
+    if resume_from is not None:
+        model = load_checkpoint(str(resume_from))
+        where = f"checkpoint {resume_from}"
+    elif config.init:
+        model = load_checkpoint(config.init)
+        where = f"--init checkpoint {config.init}"
+        model = apply_ablations(model, config.use_system2, config.use_system3, where)
+    else:
+        cfg = make_config(config.preset, init_seed=config.seed,
+                          use_system2=config.use_system2, use_system3=config.use_system3)
+        return TriVLA(cfg)
+    if model.config.preset != config.preset:
+        raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
+    if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
+        raise ValueError(f"{where} has use_system2/3 = {model.config.use_system2}/{model.config.use_system3}, "
+                         f"the run asks {config.use_system2}/{config.use_system3}")
+    return model
+
+
+def trainable_module(model: TriVLA, stage: str) -> nn.Module:
+    """What a stage trains: System 3's UNet and text projection (its VAE and CLIP stay frozen, as in
+    VPP), all of System 2, or System 1."""
+    if stage == "video":
+        return nn.ModuleList([model.dynamics.unet, model.dynamics.text_projection])
+    if stage == "vlm":
+        return model.vision_language
+    return model.policy
+
+
+class StageLoss(nn.Module):
+    """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
+
+    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator) -> None:
+        super().__init__()
+        self.model, self.stage, self.generator = model, stage, generator
+
+    def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+        if self.stage == "video":
+            return self.model.compute_video_loss(batch, generator=self.generator)
+        if self.stage == "vlm":
+            return self.model.compute_vlm_loss(batch)
+        return self.model.compute_loss(batch, generator=self.generator)
+
+
+# ---------------------------------------------------------------------------------------------
+# Random states
+
+
+def _rank_seed(seed: int, rank: int) -> int:
+    return int(hashlib.sha256(f"noise:{seed}:{rank}".encode()).hexdigest()[:15], 16)
+
+
+def _rng_state(generator: torch.Generator) -> dict[str, Any]:
+    np_state = np.random.get_state()
+    return {
+        "noise": generator.get_state(),
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+        "numpy": [np_state[0], np_state[1].tolist(), int(np_state[2]), int(np_state[3]), float(np_state[4])],
+        "python": random.getstate(),
+    }
+
+
+def _set_rng_state(state: dict[str, Any], generator: torch.Generator) -> None:
+    generator.set_state(state["noise"])
+    torch.set_rng_state(state["torch"])
+    if torch.cuda.is_available() and state.get("cuda"):
+        torch.cuda.set_rng_state_all(state["cuda"])
+    name, keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((name, np.asarray(keys, dtype=np.uint32), pos, has_gauss, cached))
+    random.setstate(_as_tuples(state["python"]))
+
+
+def _as_tuples(value: Any) -> Any:
+    return tuple(_as_tuples(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def weights_digest(model: nn.Module) -> str:
+    """sha256 of every weight and buffer of `model` (equal digests = bit-identical weights)."""
+    hasher = hashlib.sha256()
+    hash_module_weights(model, hasher)
+    return hasher.hexdigest()
+
+
+def _note(env: DistEnv, message: str) -> None:
+    """A one-line notice on stderr, from rank 0 only."""
+    if env.is_main:
+        print(f"trivla-drake train: note: {message}", file=sys.stderr)
+
+
+def _truncate_log(path: Path, last_step: int) -> None:
+    """Keeps the log lines of steps <= last_step (all of them gone for a fresh run)."""
+    if not path.is_file():
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            if json.loads(line)["step"] <= last_step:
+                kept.append(line)
+        except (ValueError, KeyError, TypeError):
+            continue
+    path.write_text("".join(line + "\n" for line in kept))
+
+
+def learning_rate(config: TrainConfig, step: int) -> float:
+    """Linear warm-up to `lr` (over warmup_steps, at most a tenth of the run), then a cosine down to
+    lr * min_lr_ratio at `steps`."""
+    warmup = min(config.warmup_steps, max(1, config.steps // 10))
+    if step < warmup:
+        return config.lr * (step + 1) / warmup
+    span = max(1, config.steps - warmup)
+    progress = min(1.0, (step - warmup) / span)
+    return config.lr * (config.min_lr_ratio + (1 - config.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def _optimizer(module: nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
+    decay, no_decay = [], []
+    for _, p in module.named_parameters():
+        if p.requires_grad:
+            (decay if p.dim() >= 2 else no_decay).append(p)
+    groups = [{"params": decay, "weight_decay": config.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+    return torch.optim.AdamW([g for g in groups if g["params"]], lr=config.lr, betas=(config.beta1, config.beta2))
+
+
+# ---------------------------------------------------------------------------------------------
+# Data per stage
+
+
+def _prepare_data(config: TrainConfig, model: TriVLA, reader, env: DistEnv) -> tuple[Any, Callable, dict]:
+    """(dataset, collate function, summary) of the stage; caches are made here (sharded over ranks)."""
+    from trivla_drake.train import datasets as ds
+
+    progress = config.progress and env.is_main
+    if config.stage == "video":
+        episodes = ds.select_episodes(reader, config.fraction, config.seed)
+        dyn = model.config.dynamics
+        store = ds.FrameStore(reader, [config.static_camera, config.wrist_camera], dyn.video_size,
+                              Path(config.cache_dir) / "clips")
+        missing = env.broadcast_object(store.missing(episodes))  # rank 0's list: ranks split the same work
+        from tqdm import tqdm
+
+        for episode, camera in tqdm(missing[env.rank :: env.world_size], desc="decoding clips", unit="video",
+                                    disable=not progress or not missing):
+            store.make(episode, camera)
+        env.barrier()
+        stride = config.future_stride or ds.clip_stride(reader.fps, dyn.num_frames, config.clip_seconds)
+        dataset = ds.VideoClipDataset(store, episodes, dyn.num_frames, stride)
+        return dataset, ds.collate_video, {
+            "episodes": len(episodes), "samples": len(dataset), "future_stride": stride,
+            "clip_seconds": (dyn.num_frames - 1) * stride / reader.fps, "clip_cache": str(store.root),
+            "clip_videos_decoded": len(missing),
+        }
+    if config.stage == "vlm":
+        from trivla_drake.train import vqa
+
+        folder = vqa_folder(config, model)
+        settings = vqa.vqa_settings(scenes=config.vqa_scenes, questions_per_scene=config.vqa_questions_per_scene,
+                                    seed=config.vqa_seed, image_size=model.image_size)
+        error = None
+        if env.is_main:
+            try:
+                vqa.ensure_vqa_set(folder, settings, progress=progress)
+            except Exception as exc:  # noqa: BLE001 - re-raised on every rank below
+                error = f"{type(exc).__name__}: {exc}"
+        error = env.broadcast_object(error)
+        if error is not None:
+            raise ValueError(f"cannot make the VQA set in {folder}: {error}")
+        dataset = vqa.VQADataset(folder, "train")
+        return dataset, vqa.collate_vqa, {"vqa_folder": str(folder), "samples": len(dataset)}
+    # policy
+    from trivla_drake.train.features import ensure_feature_cache
+
+    episodes = ds.select_episodes(reader, config.fraction, config.seed)
+    if model.vision_language is not None or model.dynamics is not None:
+        ds.check_cameras(reader, [config.static_camera, config.wrist_camera])
+    shards, summary = ensure_feature_cache(model, reader, episodes, config, env, progress=progress)
+    dataset = ds.PolicyFeatureDataset(
+        reader, episodes, shards, feature_stride=config.feature_stride,
+        action_horizon=model.config.policy.action_horizon,
+        use_system2=model.vision_language is not None, use_system3=model.dynamics is not None,
+    )
+    return dataset, ds.collate_policy, {"episodes": len(episodes), "samples": len(dataset), **summary}
+
+
+def vqa_folder(config: TrainConfig, model: TriVLA) -> Path:
+    """Where the vlm stage's VQA set lives: `data` unless that is a LeRobot dataset, else the cache."""
+    from trivla_drake.train import vqa
+
+    if config.data and not (Path(config.data) / "meta" / "info.json").is_file():
+        return Path(config.data)
+    if config.data and int(os.environ.get("RANK", "0")) == 0:
+        print(f"trivla-drake train: note: {config.data} is a LeRobot dataset; the vlm stage renders its own "
+              "scenes and does not use it", file=sys.stderr)
+    settings = vqa.vqa_settings(scenes=config.vqa_scenes, questions_per_scene=config.vqa_questions_per_scene,
+                                seed=config.vqa_seed, image_size=model.image_size)
+    return Path(config.cache_dir) / "vqa" / vqa.vqa_key(settings)
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+
+
+def train(config: TrainConfig, *, step_callback: StepCallback | None = None) -> dict[str, Any]:
+    """Runs one stage (see the module doc); returns a summary (also written to OUT/summary.json).
+    `step_callback(step)` is called after every step, once its checkpoint (if any) is written."""
+    config = config.resolved()
+    env = setup_distributed(config.dist_timeout_minutes)
+    try:
+        return _train(config, env, step_callback)
+    finally:
+        teardown_distributed(env)
+
+
+def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None) -> dict[str, Any]:
+    from tqdm import tqdm
+
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    out = Path(config.out)
+    latest = ckpt.latest_checkpoint(out)
+    resume_from = None
+    if latest is not None and not config.resume:
+        raise ValueError(f"{out} already holds a training run (newest checkpoint: {latest}); "
+                         "pass --resume to continue it, or choose another --out")
+    if config.resume and latest is not None:
+        saved = ckpt.load_train_config(latest)
+        if config.preset is None:
+            config = dataclasses.replace(config, preset=saved.preset)
+        check_resume_compatible(saved, config)
+        resume_from = latest
+    else:
+        if config.resume:
+            _note(env, f"nothing to resume in {out}; starting a new run")
+        config = dataclasses.replace(config, preset=_resolve_preset(config))
+        if config.stage == "policy" and not config.init and (config.use_system2 or config.use_system3):
+            _note(env, "the policy stage starts from a fresh preset: Systems 2 and 3 are untrained "
+                       "(pass --init with the vlm stage's final checkpoint)")
+    config.validate()
+
+    reader = None
+    if config.stage in ("video", "policy"):
+        from trivla_drake.data.lerobot import LeRobotReader
+
+        reader = LeRobotReader(config.data)
+    model = build_model(config, resume_from)
+    train_state = ckpt.load_train_state(resume_from) if resume_from is not None else None
+    if config.stage == "policy":
+        from trivla_drake.train.datasets import check_spaces, normalization_from_stats
+
+        where = f"checkpoint {resume_from}" if resume_from else (f"--init checkpoint {config.init}" if config.init
+                                                                 else f"preset {config.preset!r}")
+        check_spaces(reader, model.config, where)
+        model.set_normalization(normalization_from_stats(reader, model.config))
+
+    torch.manual_seed(config.seed)
+    model.requires_grad_(False)
+    trained = trainable_module(model, config.stage)
+    trained.requires_grad_(True)
+    model.to(env.device)
+    model.eval()
+    trained.train()
+
+    prepare_started = time.time()
+    dataset, collate, data_summary = _prepare_data(config, model, reader, env)
+    data_summary["data_prepare_s"] = time.time() - prepare_started
+    start_step = int(train_state["step"]) if train_state else 0
+    if train_state and train_state.get("world_size") != env.world_size:
+        _note(env, f"resuming a run of {train_state.get('world_size')} processes with {env.world_size}; "
+                   "the data order from here differs from an uninterrupted run")
+
+    from trivla_drake.train.sampler import StepBatchSampler
+
+    sampler = StepBatchSampler(len(dataset), config.batch_size, seed=config.seed, rank=env.rank,
+                               world_size=env.world_size, start_step=start_step, total_steps=config.steps)
+    loader = torch.utils.data.DataLoader(dataset, batch_sampler=sampler, collate_fn=collate,
+                                         num_workers=config.workers, persistent_workers=False)
+    optimizer = _optimizer(trained, config)
+    generator = torch.Generator().manual_seed(_rank_seed(config.seed, env.rank))
+    if train_state is not None:
+        optimizer.load_state_dict(train_state["optimizer"])
+        rng = train_state["rng"]
+        _set_rng_state(rng[env.rank] if env.rank < len(rng) else rng[0], generator)
+        if env.rank >= len(rng):
+            generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
+    loss_module = StageLoss(model, config.stage, generator)
+    runner: nn.Module = loss_module
+    if env.distributed:
+        runner = nn.parallel.DistributedDataParallel(
+            loss_module, device_ids=[env.device.index] if env.device.type == "cuda" else None,
+            find_unused_parameters=False,  # every trained weight gets a gradient in all three losses
+        )
+    params = [p for p in trained.parameters() if p.requires_grad]
+    autocast = env.device.type == "cuda" and config.precision == "bf16"
+
+    log_path = out / "log.jsonl"
+    if env.is_main:
+        out.mkdir(parents=True, exist_ok=True)
+        _truncate_log(log_path, start_step)  # lines of steps after the resumed checkpoint are redone
+    bar = tqdm(total=config.steps, initial=start_step, desc=f"train {config.stage}", unit="step",
+               disable=not (config.progress and env.is_main), dynamic_ncols=True)
+    loss_ema = train_state.get("loss_ema") if train_state else None
+    step = start_step
+    step_times: list[float] = []
+    started = time.time()
+
+    def save(at_step: int) -> None:
+        states = env.all_gather_object(_rng_state(generator))
+        if env.is_main:
+            state = {"step": at_step, "optimizer": optimizer.state_dict(), "rng": states,
+                     "world_size": env.world_size, "loss_ema": loss_ema}
+            ckpt.write_checkpoint(out / ckpt.CHECKPOINTS_DIR / ckpt.step_dir_name(at_step), model=model,
+                                  train_state=state, config=config)
+            ckpt.prune_checkpoints(out, config.keep_checkpoints)
+        env.barrier()
+
+    try:
+        tick = time.time()
+        for batch in loader:
+            lr = learning_rate(config, step)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            with torch.autocast("cuda", dtype=torch.bfloat16, enabled=autocast):
+                loss, info = runner(batch)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if config.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
+            optimizer.step()
+            step += 1
+            mean_loss = env.mean(float(loss.detach()))
+            if not math.isfinite(mean_loss):
+                raise FloatingPointError(f"the loss became {mean_loss} at step {step}; lower --lr")
+            loss_ema = mean_loss if loss_ema is None else 0.98 * loss_ema + 0.02 * mean_loss
+            now = time.time()
+            step_times.append(now - tick)
+            tick = now
+            bar.update(1)
+            bar.set_postfix(loss=f"{mean_loss:.4f}", ema=f"{loss_ema:.4f}", lr=f"{lr:.2e}")
+            if env.is_main and (step % config.log_every == 0 or step == config.steps):
+                with open(log_path, "a") as f:
+                    f.write(json.dumps({"step": step, "loss": mean_loss, "loss_ema": loss_ema, "lr": lr,
+                                        "step_time_s": step_times[-1], **{k: v for k, v in info.items()
+                                                                          if k != "loss"}}) + "\n")
+            if step % config.checkpoint_every == 0 or step == config.steps:
+                save(step)
+            if step_callback is not None:
+                step_callback(step)
+    finally:
+        bar.close()
+
+    if ckpt.latest_checkpoint(out) is None or ckpt.read_step(ckpt.latest_checkpoint(out)) < step:
+        save(step)  # nothing was saved yet (e.g. a run resumed at its last step)
+    summary: dict[str, Any] = {
+        "stage": config.stage, "preset": config.preset, "steps": step, "resumed_from_step": start_step,
+        "world_size": env.world_size, "batch_size_per_process": config.batch_size,
+        "loss_ema": loss_ema, "wall_s": time.time() - started,
+        "step_time_s": float(np.median(step_times[1:] or step_times)) if step_times else None,
+        **data_summary,
+    }
+    if config.stage == "vlm" and env.is_main and config.vqa_eval_questions > 0:
+        from trivla_drake.train import vqa
+
+        eval_started = time.time()
+        summary.update(vqa.evaluate_vqa(model, vqa.VQADataset(data_summary["vqa_folder"], "eval"),
+                                        batch_size=config.batch_size, max_questions=config.vqa_eval_questions))
+        summary["vqa_eval_s"] = time.time() - eval_started
+    env.barrier()
+    summary["weights_sha256_per_rank"] = env.all_gather_object(weights_digest(model))
+    if env.is_main:
+        newest = ckpt.latest_checkpoint(out)
+        if newest != out / ckpt.FINAL_DIR:
+            ckpt.copy_checkpoint(newest, out / ckpt.FINAL_DIR)
+        summary["final_checkpoint"] = str(out / ckpt.FINAL_DIR)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    env.barrier()
+    return summary
