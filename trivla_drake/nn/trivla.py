@@ -471,6 +471,32 @@ class TriVLA(nn.Module):
         ids = self._dyn_instruction_ids(list(batch["instruction"]), "batch['instruction']")
         return self.dynamics.video_loss(video, ids, generator=generator)
 
+    def score_vlm_answers(
+        self, static_rgb: Any, wrist_rgb: Any, questions: list[str], candidates: list[list[str]]
+    ) -> list[torch.Tensor]:
+        """log p(answer | images, question) under System 2's LM head, summed over the answer's tokens,
+        for every candidate answer of every sample (images uint8 (B, H, W, 3) per view; each sample's
+        images are encoded once). Returns B tensors of shape (K_b,). Used to score visual questions."""
+        import torch.nn.functional as F
+
+        vl = self.vision_language
+        if vl is None:
+            raise ValueError("score_vlm_answers needs System 2 (config.use_system2 = True)")
+        images = torch.stack([self._images(static_rgb, "static_rgb"), self._images(wrist_rgb, "wrist_rgb")], dim=1)
+        ids = self._vl_instruction_ids(list(questions), "question")
+        batch, views = images.shape[:2]
+        tokens = vl.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
+        owner = [b for b, cands in enumerate(candidates) for _ in cands]
+        flat_answers = [a for cands in candidates for a in cands]
+        prompts = vl.build_prompts([ids[b] for b in owner], views, flat_answers)
+        embeds, mask, labels = vl.assemble(tokens[owner], prompts, with_answers=True)
+        logits = vl.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits.float()
+        target = labels[:, 1:]
+        logp = F.log_softmax(logits[:, :-1], dim=-1)
+        picked = logp.gather(-1, target.clamp_min(0).unsqueeze(-1)).squeeze(-1)
+        scores = (picked * (target >= 0)).sum(-1)
+        return list(torch.split(scores, [len(c) for c in candidates]))
+
     def compute_vlm_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
         (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. Returns (loss, info)."""

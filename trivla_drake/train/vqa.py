@@ -417,27 +417,8 @@ def collate_vqa(items: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def answer_log_likelihoods(model, static, wrist, questions: list[str], candidates: list[list[str]]) -> list:
-    """log p(answer | images, question) under System 2's LM head (summed over the answer's tokens) for
-    every candidate answer of every sample: images are encoded once per sample. Returns B tensors (K_b,)."""
-    import torch
-    import torch.nn.functional as F
-
-    vl = model.vision_language
-    # the model's own input checks and tokenisation (private helpers of TriVLA, read-only use)
-    images = torch.stack([model._images(static, "static_rgb"), model._images(wrist, "wrist_rgb")], dim=1)
-    ids = model._vl_instruction_ids(list(questions), "question")  # noqa: SLF001
-    batch, views = images.shape[:2]
-    tokens = vl.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
-    owner = [b for b, cands in enumerate(candidates) for _ in cands]
-    flat_answers = [a for cands in candidates for a in cands]
-    prompts = vl.build_prompts([ids[b] for b in owner], views, flat_answers)
-    embeds, mask, labels = vl.assemble(tokens[owner], prompts, with_answers=True)
-    logits = vl.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits.float()
-    target = labels[:, 1:]
-    logp = F.log_softmax(logits[:, :-1], dim=-1)
-    picked = logp.gather(-1, target.clamp_min(0).unsqueeze(-1)).squeeze(-1)
-    scores = (picked * (target >= 0)).sum(-1)
-    return list(torch.split(scores, [len(c) for c in candidates]))
+    """log p(answer | images, question) of every candidate answer (see TriVLA.score_vlm_answers)."""
+    return model.score_vlm_answers(static, wrist, questions, candidates)
 
 
 def evaluate_vqa(model, dataset: VQADataset, *, batch_size: int = 8, max_questions: int = 400) -> dict[str, float]:
