@@ -45,8 +45,9 @@ class DifferentialIKSystem(LeafSystem):
     ):
         super().__init__()
         self._params = params or DiffIKParams()
-        # The solver owns preallocated buffers and OSQP's warm start: scratch space, not state.
-        # Its warm start only speeds the next solve up; the answer does not depend on it.
+        # The solver owns preallocated buffers and an OSQP workspace: scratch space, not state.
+        # Each answer is a function of (q, target) alone (OsqpDifferentialIK restarts OSQP from the
+        # same point every tick and polishes exactly), so Contexts sharing this system never interact.
         self._solver = OsqpDifferentialIK(kinematics or PandaKinematics(), self._params)
         self._X_BaseW = (X_WBase or RigidTransform()).inverse().GetAsMatrix4()
         self._target_port = self.DeclareAbstractInputPort("ee_target", AbstractValue.Make(RigidTransform()))
