@@ -8,19 +8,12 @@ import dataclasses
 import os
 
 import pytest
-import torch
 
 from trivla_drake.nn import TriVLA, make_config, save_checkpoint
 from trivla_drake.train.cli_commands import add_train_parser, config_from_args, main
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 
 @pytest.fixture(scope="module")

@@ -17,12 +17,6 @@ from trivla_drake.train.datasets import select_episodes
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 
 @pytest.fixture(scope="module")
