@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
@@ -26,10 +24,8 @@ def _render(station, context, camera):
 
 
 def _panda_labels(plant):
-    from pydrake.multibody.tree import BodyIndex
-
-    panda = plant.GetModelInstanceByName("panda")
-    return [int(i) for i in plant.GetBodyIndices(panda)] if panda else [BodyIndex(0)]
+    """Render labels are body indices: the Panda's are those of its model instance."""
+    return [int(i) for i in plant.GetBodyIndices(plant.GetModelInstanceByName("panda"))]
 
 
 def test_renders_without_a_display(station_and_context, monkeypatch):

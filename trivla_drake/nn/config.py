@@ -240,6 +240,13 @@ def validate_config(config: TriVLAConfig) -> None:
 # Presets
 
 
+# The small presets' UNet: three levels, cross-attention on the two finest (as SVD's, shallower).
+_THREE_LEVEL_UNET_BLOCKS = dict(
+    down_block_types=("CrossAttnDownBlockSpatioTemporal", "CrossAttnDownBlockSpatioTemporal", "DownBlockSpatioTemporal"),
+    up_block_types=("UpBlockSpatioTemporal", "CrossAttnUpBlockSpatioTemporal", "CrossAttnUpBlockSpatioTemporal"),
+)
+
+
 def _paper_config() -> TriVLAConfig:
     return TriVLAConfig(preset="paper")
 
@@ -272,16 +279,7 @@ def _cpu_config() -> TriVLAConfig:
             vae=VideoAutoencoderConfig(block_out_channels=(32, 32, 64, 64), layers_per_block=1),
             unet=VideoUNetConfig(
                 block_out_channels=(32, 64, 64),
-                down_block_types=(
-                    "CrossAttnDownBlockSpatioTemporal",
-                    "CrossAttnDownBlockSpatioTemporal",
-                    "DownBlockSpatioTemporal",
-                ),
-                up_block_types=(
-                    "UpBlockSpatioTemporal",
-                    "CrossAttnUpBlockSpatioTemporal",
-                    "CrossAttnUpBlockSpatioTemporal",
-                ),
+                **_THREE_LEVEL_UNET_BLOCKS,
                 layers_per_block=1,
                 cross_attention_dim=64,
                 num_attention_heads=(2, 4, 4),
@@ -342,16 +340,7 @@ def _tiny_config() -> TriVLAConfig:
             vae=VideoAutoencoderConfig(block_out_channels=(32, 32), layers_per_block=1),
             unet=VideoUNetConfig(
                 block_out_channels=(32, 32, 32),
-                down_block_types=(
-                    "CrossAttnDownBlockSpatioTemporal",
-                    "CrossAttnDownBlockSpatioTemporal",
-                    "DownBlockSpatioTemporal",
-                ),
-                up_block_types=(
-                    "UpBlockSpatioTemporal",
-                    "CrossAttnUpBlockSpatioTemporal",
-                    "CrossAttnUpBlockSpatioTemporal",
-                ),
+                **_THREE_LEVEL_UNET_BLOCKS,
                 layers_per_block=1,
                 cross_attention_dim=32,
                 num_attention_heads=(1, 2, 2),

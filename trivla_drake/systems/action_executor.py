@@ -37,10 +37,12 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from trivla_drake.station.panda_driver import MAX_GRIPPER_WIDTH
+
 ACTION_NAMES = ("dx", "dy", "dz", "drx", "dry", "drz", "gripper")
 ACTION_DIM = 7
 GRIPPER_OPEN, GRIPPER_CLOSE = 1.0, -1.0
-OPEN_WIDTH = 0.08  # [m] commanded finger distance for an open hand
+OPEN_WIDTH = MAX_GRIPPER_WIDTH  # [m] commanded finger distance for an open hand (fully open)
 CLOSED_WIDTH = 0.0  # [m] commanded finger distance for a closed hand
 
 
