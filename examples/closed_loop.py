@@ -20,7 +20,7 @@ from trivla_drake.systems.policy_wiring import add_trivla_policy
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", help="TriVLA checkpoint (default: models/trivla_cpu)")
-    parser.add_argument("--preset", default="cpu", help="untrained model preset when there is no checkpoint")
+    parser.add_argument("--preset", default=None, help="use an UNTRAINED model of this preset (tiny, cpu) instead of the shipped checkpoint")
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--instruction", default="put the red block in the bowl")
     args = parser.parse_args()

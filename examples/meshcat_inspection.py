@@ -19,7 +19,7 @@ from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint")
-    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--preset", default=None, help="use an UNTRAINED model of this preset (tiny, cpu) instead of the shipped checkpoint")
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--instruction", default="open the drawer")
     parser.add_argument("--record", help="save the run as a self-contained HTML page")

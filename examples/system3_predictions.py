@@ -22,7 +22,7 @@ from trivla_drake.station import load_scenario
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint")
-    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--preset", default=None, help="use an UNTRAINED model of this preset (tiny, cpu) instead of the shipped checkpoint")
     parser.add_argument("--at", type=float, default=1.0, help="sim time of the current frame [s]")
     parser.add_argument("--frame-spacing", type=float, default=0.25, help="time between clip frames [s]")
     parser.add_argument("--instruction", default="move the hand in a circle")

@@ -113,3 +113,16 @@ def test_record_dir_saves_one_video_per_episode(tmp_path):
     (video,) = tmp_path.glob("*.mp4")
     frames = read_video(video)
     assert frames.shape == (21, 32, 64, 3)  # static | wrist side by side, every step and the last state
+
+
+def test_default_evaluation_scenes_are_unseen_by_default_collection():
+    from trivla_drake.eval.collect import CollectConfig
+    from trivla_drake.eval.episode import derive_seed
+    from trivla_drake.eval.evaluate import EvalConfig
+    from trivla_drake.eval.paper_tables import TablesConfig
+    from trivla_drake.tasks import TASK_NAMES
+
+    collected = {derive_seed(CollectConfig.seed, task, a) for task in TASK_NAMES for a in range(200)}
+    for base in (EvalConfig.seed, *TablesConfig().seeds):
+        assert base != CollectConfig.seed
+        assert not collected & {derive_seed(base, task, i) for task in TASK_NAMES for i in range(50)}

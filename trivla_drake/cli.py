@@ -71,7 +71,7 @@ def _cmd_bench(args) -> int:
     result.update(benchmark_diffik(num_problems=args.diffik_problems))
     result.update(benchmark_station(load_scenario(args.scenario), seconds=args.seconds))
     _set_torch_threads(args.threads)
-    model = load_model(args.checkpoint, preset=args.preset)
+    model = load_model(args.checkpoint)
     result.update(benchmark_closed_loop(load_scenario(args.scenario), model, seconds=args.seconds))
     _print_result(result, args.json, "benchmark")
     return 0
@@ -162,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--task", default="place_in_bowl", help="task name (see `trivla-drake evaluate --help`)")
     demo.add_argument("--instruction", help="say this instead of the task's own instruction")
     demo.add_argument("--episodes", type=int, default=1)
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=int, default=1000,
+                      help="base seed (default 1000: scenes unseen by demonstrations collected with seed 0)")
     demo.add_argument("--latency", default="zero", help="zero, measured (each inference's wall time) or seconds")
     demo.add_argument("--max-seconds", type=float, default=None,
                       help="episode time limit in sim seconds (default: the task's own limit)")
@@ -177,9 +178,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_collect_parser(commands)
     add_evaluate_parser(commands)
-    from trivla_drake.train.cli_commands import add_train_parser
+    from trivla_drake.train.cli_commands import add_export_parser, add_train_parser
 
     add_train_parser(commands)
+    add_export_parser(commands)
 
     tables = commands.add_parser("tables", help="the paper's tables for our suite (success, chains, ablation, "
                                  "data efficiency, paraphrases, latency), Markdown + JSON + plots")
@@ -190,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--out", required=True, help="folder for report.md, report.json and the plots")
     tables.add_argument("--tasks", default="all")
     tables.add_argument("--episodes", type=int, default=5, help="episodes per task and seed (default 5)")
-    tables.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (default 0,1,2)")
+    tables.add_argument("--seeds", default="1000,1001,1002",
+                        help="comma-separated base seeds (default 1000,1001,1002: unseen by `collect`'s seed 0)")
     tables.add_argument("--chains", type=int, default=5, help="5-task chains per seed (default 5)")
     tables.add_argument("--latency-episodes", type=int, default=2, help="episodes per task, latency rows")
     tables.add_argument("--workers", type=int, default=1)
@@ -206,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--diffik-problems", type=int, default=2000, help="diff-IK problems to time")
     bench.add_argument("--scenario", default=None, help="scenarios YAML file")
     bench.add_argument("--checkpoint", default=None, help="TriVLA checkpoint for the closed-loop figure "
-                       "(default: models/trivla_cpu, else an untrained --preset model)")
+                       "(default: models/trivla_cpu, else an untrained cpu model)")
     bench.add_argument("--threads", type=int, default=1,
                        help="torch threads in the closed loop (default 1: physics and rendering share the cores)")
     bench.add_argument("--json", action="store_true", help="print one JSON object on stdout")

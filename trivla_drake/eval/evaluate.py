@@ -28,8 +28,9 @@ class EvalConfig:
     tasks: list[str] = field(default_factory=list)
     # Episodes per task.
     episodes: int = 10
-    # Base seed of every episode's and chain's randomness.
-    seed: int = 0
+    # Base seed of every episode's and chain's randomness (default: EVAL_BASE_SEED, whose scenes the
+    # demonstrations, collected from base seed 0, never saw).
+    seed: int = 1000
     # Chains of five tasks to run (0: none).
     chains: int = 0
     # Instructions from the held-out paraphrases instead of the training templates.

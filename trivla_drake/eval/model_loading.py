@@ -17,13 +17,16 @@ def default_checkpoint_dir() -> Path:
     return models_dir() / DEFAULT_CHECKPOINT_NAME
 
 
-def load_model(checkpoint: str | Path | None = None, *, preset: str = "cpu", seed: int = 0) -> TriVLA:
-    """The checkpoint at `checkpoint`; else the shipped default checkpoint; else an UNTRAINED model
-    of `preset` (logged as a warning: its actions are random, useful for timing and wiring only)."""
+def load_model(checkpoint: str | Path | None = None, *, preset: str | None = None, seed: int = 0) -> TriVLA:
+    """The checkpoint at `checkpoint`; else, when `preset` is given, an UNTRAINED model of that preset
+    (for wiring and timing); else the shipped default checkpoint (models/trivla_cpu); else an UNTRAINED
+    `cpu` model. An untrained model is logged as a warning: its actions are meaningless."""
     if checkpoint is not None:
         return load_checkpoint(str(checkpoint)).eval()
     default = default_checkpoint_dir()
-    if (default / "config.json").exists():
+    if preset is None and (default / "config.json").exists():
         return load_checkpoint(str(default)).eval()
-    _log.warning("no TriVLA checkpoint given and none at %s: using an UNTRAINED '%s' model", default, preset)
+    preset = preset or "cpu"
+    _log.warning("no TriVLA checkpoint given%s: using an UNTRAINED '%s' model",
+                 "" if (default / "config.json").exists() else f" and none at {default}", preset)
     return TriVLA(make_config(preset, init_seed=seed), load_pretrained=False).eval()

@@ -47,9 +47,18 @@ def _aliases(model: torch.nn.Module) -> dict[str, str]:
     return aliases
 
 
-def save_checkpoint(model: TriVLA, directory: str) -> None:
-    """Writes `directory`/model.safetensors and `directory`/config.json (and tokenizer folders if pretrained)."""
+WEIGHT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
+
+
+def save_checkpoint(model: TriVLA, directory: str, *, weights_dtype: str = "float32") -> None:
+    """Writes `directory`/model.safetensors and `directory`/config.json (and tokenizer folders if pretrained).
+    `weights_dtype` "float16" halves the file (the shipped default checkpoint); floating-point weights are
+    stored in that type and `load_checkpoint` casts them back to the model's float32."""
     from safetensors.torch import save_file
+
+    if weights_dtype not in WEIGHT_DTYPES:
+        raise ValueError(f"weights_dtype must be one of {', '.join(WEIGHT_DTYPES)}; got {weights_dtype!r}")
+    dtype = WEIGHT_DTYPES[weights_dtype]
 
     os.makedirs(directory, exist_ok=True)
     tokenizers: dict[str, str] = {}
@@ -73,8 +82,10 @@ def save_checkpoint(model: TriVLA, directory: str) -> None:
         "action_space": model.action_space(),
         "normalization": model.normalization.to_dict(),
         "parameter_counts": model.parameter_counts(),
+        "weights_dtype": weights_dtype,
     }
-    save_file(_unique_state_dict(model), os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
+    weights = {k: v.to(dtype) if v.is_floating_point() else v for k, v in _unique_state_dict(model).items()}
+    save_file(weights, os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
     with open(os.path.join(directory, CONFIG_FILE), "w") as f:
         json.dump(meta, f, indent=2)
 

@@ -103,6 +103,25 @@ def copy_checkpoint(source: str | os.PathLike, target: str | os.PathLike) -> Pat
     return target
 
 
+def export_checkpoint(source: str | os.PathLike, target: str | os.PathLike, *, weights_dtype: str = "float16") -> Path:
+    """Writes the model of checkpoint `source` (no optimizer state) to `target` atomically, its weights in
+    `weights_dtype` (float16: half the size, e.g. the shipped models/trivla_cpu). An existing `target`
+    is replaced only once the new one is complete."""
+    from trivla_drake.nn.checkpoint import load_checkpoint
+
+    model = load_checkpoint(str(source))
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        save_checkpoint(model, str(tmp), weights_dtype=weights_dtype)
+        _publish(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
 def list_checkpoints(out: str | os.PathLike) -> list[tuple[int, Path]]:
     """(step, folder) of every complete periodic checkpoint in `out`, oldest first."""
     root = Path(out) / CHECKPOINTS_DIR

@@ -131,6 +131,33 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     return parser
 
 
+def run_export(args: argparse.Namespace) -> int:
+    """`trivla-drake export`: a checkpoint's model, without optimizer state, in a smaller dtype."""
+    from trivla_drake.train.checkpoints import export_checkpoint
+
+    try:
+        target = export_checkpoint(args.checkpoint, args.out, weights_dtype=args.dtype)
+    except _user_errors() as error:
+        print(f"trivla-drake export: error: {error}", file=sys.stderr)
+        return 2
+    size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
+    print(f"wrote {target} ({size / 1e6:.1f} MB, weights in {args.dtype})")
+    return 0
+
+
+def add_export_parser(commands) -> argparse.ArgumentParser:
+    """Register `export` on an argparse subparsers object."""
+    parser = commands.add_parser(
+        "export", help="write a checkpoint's model (no optimizer state) with float16 weights, e.g. for "
+                       "models/trivla_cpu")
+    parser.add_argument("checkpoint", help="checkpoint folder (a run's final/ or checkpoints/step-N/)")
+    parser.add_argument("--out", required=True, help="folder to write (replaced atomically if it exists)")
+    parser.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
+                        help="stored weight type (default float16); loading casts back to float32")
+    parser.set_defaults(run=run_export)
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
     """Standalone entry point with just `train` (also what torchrun runs with -m)."""
     parser = argparse.ArgumentParser(prog="trivla-drake")
