@@ -107,7 +107,8 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
 def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     """Register `evaluate` on an argparse subparsers object."""
     parser = commands.add_parser("evaluate", help="closed-loop evaluation: per-task success and chain Avg. Len")
-    parser.add_argument("--policy", default="oracle", help="oracle, random, or a checkpoint directory")
+    parser.add_argument("--policy", default="oracle",
+                        help="oracle, random, trivla (the shipped checkpoint models/trivla_cpu) or a checkpoint directory")
     parser.add_argument("--tasks", default="all", help=f"all, or comma-separated names: {', '.join(TASK_NAMES)}")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per task (default 10; 0: chains only)")
     parser.add_argument("--seed", type=int, default=1000,

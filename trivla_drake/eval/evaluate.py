@@ -22,7 +22,7 @@ _POLICY_CACHE: dict[str, object] = {}
 class EvalConfig:
     """What `evaluate` runs."""
 
-    # 'oracle', 'random' or a checkpoint path.
+    # 'oracle', 'random', 'trivla' (the shipped checkpoint) or a checkpoint path.
     policy: str = "oracle"
     # Task names (all tasks by default).
     tasks: list[str] = field(default_factory=list)
@@ -95,7 +95,10 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
 def _worker_init() -> None:
     import logging
 
+    import torch
+
     logging.getLogger("drake").setLevel(logging.ERROR)
+    torch.set_num_threads(1)  # one process per core: threads would only fight over the cores
 
 
 def run_jobs(config: EvalConfig, jobs: list[tuple], *, progress: bool, description: str) -> list[dict]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from trivla_drake.systems.action_executor import ACTION_DIM, ACTION_HIGH, ACTION_LOW
 
-POLICY_CHOICES = ("oracle", "random")
+POLICY_CHOICES = ("oracle", "random", "trivla")
 
 
 @runtime_checkable
@@ -69,7 +69,15 @@ def load_checkpoint_policy(path: str | Path) -> Policy:
 
 
 def load_policy(spec: str) -> Policy:
-    """'oracle', 'random', or the path of a checkpoint directory."""
+    """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory."""
+    if spec == "trivla":
+        from trivla_drake.eval.model_loading import default_checkpoint_dir
+
+        default = default_checkpoint_dir()
+        if not (default / "config.json").exists():
+            raise ValueError(f"--policy trivla needs the shipped checkpoint at {default}; it is missing "
+                             "(give a checkpoint directory instead)")
+        return load_checkpoint_policy(default)
     if spec == "oracle":
         from trivla_drake.tasks.oracle import OraclePolicy
 

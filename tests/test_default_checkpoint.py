@@ -1,0 +1,40 @@
+"""The shipped checkpoint (models/trivla_cpu): small enough to keep in git, loaded by default, and it
+still solves a task it was trained on, in closed loop on a scene it never saw."""
+
+import json
+import logging
+
+import pytest
+
+from trivla_drake.eval.model_loading import default_checkpoint_dir, load_model
+from trivla_drake.systems.action_executor import ACTION_DIM
+
+SIZE_LIMIT_BYTES = 25_000_000
+
+
+def test_shipped_checkpoint_is_a_float16_cpu_checkpoint_under_25_mb():
+    directory = default_checkpoint_dir()
+    files = sorted(p.name for p in directory.iterdir())
+    assert "model.safetensors" in files and "config.json" in files
+    assert sum(p.stat().st_size for p in directory.rglob("*") if p.is_file()) <= SIZE_LIMIT_BYTES
+    meta = json.loads((directory / "config.json").read_text())
+    assert meta["preset"] == "cpu" and meta["weights_dtype"] == "float16"
+    assert len(meta["action_space"]["names"]) == ACTION_DIM
+
+
+def test_load_model_uses_the_shipped_checkpoint_without_warning(caplog):
+    with caplog.at_level(logging.WARNING):
+        model = load_model()
+    assert "UNTRAINED" not in caplog.text
+    assert model.config.preset == "cpu" and model.normalization is not None
+    with caplog.at_level(logging.WARNING):
+        load_model(preset="tiny")
+    assert "UNTRAINED 'tiny'" in caplog.text
+
+
+def test_shipped_checkpoint_solves_a_training_task_on_an_unseen_scene():
+    from trivla_drake.eval.evaluate import EvalConfig, evaluate
+
+    report = evaluate(EvalConfig(policy="trivla", tasks=[SOLVED_TASK], episodes=1, seed=SOLVED_SEED),
+                      progress=False)
+    assert report["tasks"][SOLVED_TASK]["success_rate"] == 1.0
