@@ -135,3 +135,19 @@ def test_fraction_keeps_a_share_of_every_task(tmp_path):
     assert select_episodes(reader, 0.5, seed=0) == chosen and select_episodes(reader, 0.5, seed=1) != chosen
     assert len(select_episodes(reader, 0.01, seed=0)) == 3  # at least one per task
     assert select_episodes(reader, 1.0, seed=0) == list(range(12))
+
+
+def test_every_stage_writes_its_loss_curve(runs, tmp_path):
+    import shutil
+
+    from trivla_drake.train.loss_plot import read_log
+
+    for stage in ("video", "vlm", "policy"):
+        plot = runs["root"] / stage / "loss.png"
+        assert runs[stage]["loss_plot"] == str(plot)
+        assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and plot.stat().st_size > 5000
+    log = shutil.copy(runs["root"] / "policy" / "log.jsonl", tmp_path / "log.jsonl")
+    rows = read_log(log)
+    with open(log, "a") as f:
+        f.write('{"step": 99, "loss"')  # torn line of a killed run
+    assert read_log(log) == rows

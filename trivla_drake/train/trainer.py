@@ -471,6 +471,12 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         if newest != out / ckpt.FINAL_DIR:
             ckpt.copy_checkpoint(newest, out / ckpt.FINAL_DIR)
         summary["final_checkpoint"] = str(out / ckpt.FINAL_DIR)
+        if log_path.exists():
+            from trivla_drake.train.loss_plot import plot_training_curve
+
+            plot = plot_training_curve(log_path, out / "loss.png", title=f"{config.stage} stage, {out.name}")
+            if plot is not None:
+                summary["loss_plot"] = str(plot)
         (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     env.barrier()
     return summary
