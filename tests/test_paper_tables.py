@@ -24,18 +24,27 @@ def checkpoints(tmp_path_factory):
     return paths
 
 
-def test_tables_from_untrained_checkpoints(checkpoints, tmp_path):
-    out = tmp_path / "tables"
+def _tables(checkpoints, out, *extra):
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
     result = subprocess.run(
         [sys.executable, "-m", "trivla_drake.cli", "tables", "--full", str(checkpoints["full"]),
          "--system1", str(checkpoints["system1"]), "--out", str(out), "--tasks", "turn_on_light",
          "--episodes", "1", "--seeds", "0", "--chains", "1", "--latency-episodes", "1",
-         "--max-steps", "12", "--json"],
+         "--max-steps", "12", "--json", *extra],
         capture_output=True, text=True, timeout=600, env=env,
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    report = json.loads(result.stdout)
+    return json.loads(result.stdout)
+
+
+@pytest.fixture(scope="module")
+def first_run(checkpoints, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tables")
+    return out, _tables(checkpoints, out)
+
+
+def test_tables_from_untrained_checkpoints(first_run):
+    out, report = first_run
     assert report["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0  # untrained: no success
     assert [row["systems"] for row in report["ablation"]] == ["1", "1+2+3"]
     assert report["ablation"][0]["params_millions"] < report["ablation"][1]["params_millions"]
@@ -52,3 +61,22 @@ def test_bad_roles_and_paths_are_named(tmp_path):
         TablesConfig(checkpoints={"full": str(tmp_path)}).validate()
     with pytest.raises(ValueError, match="valid roles"):
         TablesConfig(checkpoints={"full": str(tmp_path), "half": str(tmp_path)}).validate()
+
+
+def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints, first_run):
+    out, first = first_run
+    stored = sorted((out / "evaluations").glob("*.json"))
+    # main, paraphrases, system1 at one seed; latency: 3 tasks x on/off
+    assert len(stored) == 3 + 6
+    main = next(p for p in stored if json.loads(p.read_text())["settings"] == {
+        "kind": "evaluate", "tasks": ["turn_on_light"], "episodes": 1, "seed": 0, "chains": 1,
+        "paraphrases": False, "max_steps": 12} and json.loads(p.read_text())["checkpoint"] == str(checkpoints["full"]))
+    record = json.loads(main.read_text())
+    record["result"]["tasks"]["turn_on_light"]["success_rate"] = 1.0  # marks the stored result
+    main.write_text(json.dumps(record))
+    second = _tables(checkpoints, out)
+    assert first["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0
+    assert second["main"]["tasks"]["turn_on_light"]["success_rate"] == 1.0  # reused, not recomputed
+    assert sorted((out / "evaluations").glob("*.json")) == stored
+    third = _tables(checkpoints, out, "--no-reuse")
+    assert third["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0

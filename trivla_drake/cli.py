@@ -6,6 +6,7 @@ import argparse
 import json
 import logging
 import os
+from pathlib import Path
 import sys
 
 # On a 2-core machine shared with physics and rendering, OpenMP threads that spin while waiting
@@ -127,7 +128,8 @@ def _cmd_tables(args) -> int:
                                                  ("system1", args.system1), ("data10", args.data10)) if path}
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
                           seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
-                          max_steps=args.max_steps, latency_episodes=args.latency_episodes)
+                          max_steps=args.max_steps, latency_episodes=args.latency_episodes,
+                          results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
         config.tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
     _set_torch_threads(args.threads)
@@ -199,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--workers", type=int, default=1)
     tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
     tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    tables.add_argument("--no-reuse", action="store_true",
+                        help="do not store or reuse evaluations in OUT/evaluations/ (default: reuse, so a "
+                             "killed or extended run redoes only what is missing)")
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
 

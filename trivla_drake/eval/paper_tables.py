@@ -5,12 +5,19 @@ Checkpoints by role (only `full` is required; a missing role leaves its rows out
   full        Systems 1+2+3 trained on 100% of the demonstrations
   system1_3   trained without System 2            system1   trained without Systems 2 and 3
   data10      Systems 1+2+3 trained on 10% of the demonstrations
+
+With `results_dir` set (the CLI uses OUT/evaluations/), each evaluation (one checkpoint, one seed,
+one setting) is stored there as JSON, named by a hash of the checkpoint's files and the settings, and
+written atomically: a killed run, or a later run with another checkpoint added, redoes only what is
+missing, and a retrained checkpoint never reuses stale results.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -47,6 +54,8 @@ class TablesConfig:
     workers: int = 1
     # Cap on steps per episode (None: each task's own).
     max_steps: int | None = None
+    # Folder of stored evaluation results to reuse and add to (None: store nothing).
+    results_dir: str | None = None
 
     def validate(self) -> None:
         unknown = sorted(set(self.checkpoints) - set(ROLES))
@@ -68,13 +77,47 @@ def _mean_stderr(values: list[float]) -> tuple[float, float]:
     return float(array.mean()), float(array.std(ddof=1) / math.sqrt(len(array)))
 
 
+def _checkpoint_fingerprint(checkpoint: str, _cache: dict[str, str] = {}) -> str:
+    """sha256 over a checkpoint's config.json and weights (computed once per path and process)."""
+    if checkpoint not in _cache:
+        digest = hashlib.sha256()
+        for name in ("config.json", "model.safetensors"):
+            with open(Path(checkpoint) / name, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(block)
+        _cache[checkpoint] = digest.hexdigest()
+    return _cache[checkpoint]
+
+
+def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> dict:
+    """compute() once per (checkpoint contents, settings) when `results_dir` is set, else every call."""
+    if config.results_dir is None:
+        return compute()
+    key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
+    path = Path(config.results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+    if path.exists():
+        try:
+            return json.loads(path.read_text())["result"]
+        except (json.JSONDecodeError, KeyError):
+            pass  # unreadable: compute it again
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    tmp.write_text(json.dumps({"checkpoint": checkpoint, "settings": settings, "result": result}))
+    tmp.replace(path)
+    return result
+
+
 def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = False, chains: int = 0) -> dict:
-    reports = [
-        evaluate(EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
-                            chains=chains, paraphrases=paraphrases, workers=config.workers,
-                            max_steps=config.max_steps), progress=False)
-        for seed in config.seeds
-    ]
+    def one_seed(seed: int) -> dict:
+        eval_config = EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
+                                 chains=chains, paraphrases=paraphrases, workers=config.workers,
+                                 max_steps=config.max_steps)
+        settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
+                    "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
+        return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
+
+    reports = [one_seed(seed) for seed in config.seeds]
     tasks = {name: dict(zip(("success_rate", "stderr"), _mean_stderr([r["tasks"][name]["success_rate"] for r in reports])))
              for name in config.tasks}
     result = {"tasks": tasks}
@@ -111,8 +154,11 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
         successes, control = [], []
         for task in config.latency_tasks:
             max_seconds = config.max_steps / 36.0 if config.max_steps else None
-            report = run_trivla_demo(model, task, episodes=config.latency_episodes, seed=config.seeds[0],
-                                     latency=latency, max_seconds=max_seconds).as_dict()
+            settings = {"kind": "demo", "task": task, "episodes": config.latency_episodes, "seed": config.seeds[0],
+                        "latency": label, "max_seconds": max_seconds}
+            report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(
+                model, task, episodes=config.latency_episodes, seed=config.seeds[0], latency=latency,
+                max_seconds=max_seconds).as_dict())
             successes.append(report["success_rate"])
             control.append(report["control_hz"])
         rows[label] = {"success_rate": float(np.mean(successes)), "control_hz": float(np.mean(control))}
