@@ -69,10 +69,10 @@ def test_a_directory_that_is_not_a_checkpoint_is_a_clear_error(tmp_path, capsys)
 def test_a_failing_simulation_is_a_failure_with_its_reason(monkeypatch):
     original = TabletopEnv.step
 
-    def failing_step(self, action):
+    def failing_step(self, action, **kwargs):
         if self.step_index == 5:
             raise SimulationError("contact solver diverged (injected)")
-        return original(self, action)
+        return original(self, action, **kwargs)
 
     monkeypatch.setattr(episode_module.TabletopEnv, "step", failing_step)
     result = run_episode("turn_on_light", 1, OraclePolicy())
@@ -126,3 +126,30 @@ def test_default_evaluation_scenes_are_unseen_by_default_collection():
     for base in (EvalConfig.seed, *TablesConfig().seeds):
         assert base != CollectConfig.seed
         assert not collected & {derive_seed(base, task, i) for task in TASK_NAMES for i in range(50)}
+
+
+class _ImageSpy:
+    """Looks at the cameras at every chunk boundary (4-step chunks of small moves) and remembers what it saw."""
+
+    name = "image-spy"
+    uses_images = True
+    privileged = False
+
+    def __init__(self):
+        self.seen = []
+
+    def reset(self, instruction, seed):
+        pass
+
+    def act(self, observation):
+        self.seen.append((observation["time"], observation["static_rgb"].tobytes(), observation["wrist_rgb"].tobytes()))
+        return np.tile([0.004, 0.0, -0.003, 0.0, 0.0, 0.0, 1.0], (4, 1))
+
+
+def test_images_rendered_only_at_chunk_boundaries_are_those_of_every_step_rendering(tmp_path):
+    lazy, every_step = _ImageSpy(), _ImageSpy()
+    run_episode("lift_block", 3, lazy, image_size=64, max_steps=12)
+    run_episode("lift_block", 3, every_step, image_size=64, max_steps=12, video_path=tmp_path / "all.mp4")
+    assert len(lazy.seen) == 3 and [t for t, *_ in lazy.seen] == pytest.approx([0.0, 4 / 36, 8 / 36])
+    assert lazy.seen == every_step.seen
+    assert lazy.seen[0][2] != lazy.seen[2][2]  # the wrist camera moved with the hand

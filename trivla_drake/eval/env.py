@@ -118,8 +118,9 @@ class TabletopEnv:
         self._started = True
         return self.observation()
 
-    def step(self, action) -> dict:
-        """Apply one action for one control period; returns the next observation."""
+    def step(self, action, *, images: bool = True) -> dict:
+        """Apply one action for one control period; returns the next observation (without the camera
+        images when `images` is False: rendering is most of a step's cost; `images()` adds them later)."""
         if not self._started:
             raise RuntimeError("TabletopEnv.step called before reset")
         action = check_action(action)
@@ -132,7 +133,7 @@ class TabletopEnv:
         plant_context = self.handles.plant.GetMyContextFromRoot(self._context)
         if not np.all(np.isfinite(self.handles.plant.GetPositionsAndVelocities(plant_context))):
             raise SimulationError(f"non-finite state at t = {self._context.get_time():.3f} s")
-        return self.observation()
+        return self.observation(images=images)
 
     @property
     def step_index(self) -> int:
@@ -142,8 +143,9 @@ class TabletopEnv:
         """Ground truth of the scene now."""
         return self.handles.read(self._context)
 
-    def observation(self) -> dict:
-        """The policy-facing observation now (see the module docstring)."""
+    def observation(self, *, images: bool = True) -> dict:
+        """The policy-facing observation now (see the module docstring); `images=False` leaves out
+        the camera images."""
         station_context = self.station.GetMyContextFromRoot(self._context)
         executor_context = self.executor.GetMyContextFromRoot(self._context)
         width = self.executor.GetOutputPort("gripper_width").Eval(executor_context)[0]
@@ -155,10 +157,22 @@ class TabletopEnv:
             "tcp_pose": self.handles.tcp_frame.CalcPoseInWorld(plant.GetMyContextFromRoot(self._context)).GetAsMatrix4(),
             "time": self._context.get_time(),
         }
+        if images:
+            obs.update(self.images())
+        return obs
+
+    @property
+    def has_cameras(self) -> bool:
+        """Whether observations carry camera images (image_size was given)."""
+        return bool(self._cameras)
+
+    def images(self) -> dict[str, np.ndarray]:
+        """Each camera's RGB image now, rendered on this call: {key: (H, W, 3) uint8}."""
+        out = {}
         for key, (sensor, port) in self._cameras.items():
             image = port.Eval(sensor.GetMyContextFromRoot(self._context))
-            obs[key] = np.array(image.data[:, :, :3], dtype=np.uint8)
-        return obs
+            out[key] = np.array(image.data[:, :, :3], dtype=np.uint8)
+        return out
 
 
 def _copy_scenario(scenario: Scenario) -> Scenario:

@@ -109,6 +109,10 @@ class _Recorder:
         self.video_path = video_path
         self.fps = fps
 
+    def needs_images(self, env: TabletopEnv) -> bool:
+        """Whether every step's camera images are recorded (video or a trajectory with images)."""
+        return env.has_cameras and (self.frames is not None or self.trajectory is not None)
+
     def add(self, obs: dict, action: np.ndarray | None) -> None:
         if self.frames is not None and "static_rgb" in obs:
             self.frames.append(np.concatenate([obs["static_rgb"], obs["wrist_rgb"]], axis=1))
@@ -153,16 +157,19 @@ def _run_subtask(
         return result, obs
     policy.reset(instance.instruction, seed)
     queue: list[np.ndarray] = []
+    every_frame = recorder.needs_images(env)
     step = 0
     while step < max_steps:
         obs["instruction"] = instance.instruction
         if not queue:
             if policy.privileged:
                 obs["privileged"] = {"scene": env.scene(), "task": instance}
+            if policy.uses_images and env.has_cameras and "static_rgb" not in obs:
+                obs.update(env.images())  # rendered only when the policy looks
             queue = list(as_action_rows(policy.act(obs)))
         action = queue.pop(0)
         recorder.add(obs, action)
-        obs = env.step(action)
+        obs = env.step(action, images=every_frame)
         step += 1
         if task.success(instance.params, initial, env.scene()):
             result.success, result.steps = True, step
