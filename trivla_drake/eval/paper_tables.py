@@ -190,8 +190,14 @@ def make_tables(config: TablesConfig) -> dict:
 def format_tables(report: dict) -> str:
     """The report as Markdown tables."""
     main = report["main"]
-    lines = ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
-             "| --- | --- | --- |"]
+    cfg = report.get("config", {})
+    lines = []
+    if cfg:
+        lines += [f"Settings: {cfg['episodes']} episodes per task and seed, seeds {', '.join(map(str, cfg['seeds']))} "
+                  f"(each seed's mean is one sample of the stderr), {cfg['chains']} five-task chains per seed, "
+                  f"latency rows {cfg['latency_episodes']} episodes on each of {', '.join(cfg['latency_tasks'])}.", ""]
+    lines += ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
+              "| --- | --- | --- |"]
     for name, row in main["tasks"].items():
         para = report["paraphrases"]["tasks"][name]
         lines.append(f"| {name} | {row['success_rate']:.2f} ± {row['stderr']:.2f} | "

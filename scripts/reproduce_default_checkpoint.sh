@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Rebuilds models/trivla_cpu and the tables in results/ exactly as they were made (2 CPU cores, about
+# 3 hours; every step resumes or reuses its caches if rerun). Run from the repository root in the
+# project's virtualenv. DATA and RUNS may be moved elsewhere.
+set -euo pipefail
+DATA=${DATA:-data/sim}
+RUNS=${RUNS:-runs}
+export OMP_WAIT_POLICY=PASSIVE
+
+# 1. 20 oracle demonstrations per task (240 episodes), then System 3 on their clips (eq. 1).
+trivla-drake collect --out "$DATA" --episodes-per-task 20
+trivla-drake train --stage video --data "$DATA" --out "$RUNS/video" --preset cpu --steps 1200 --threads 2
+# 2. 10 more per task (seeds continue where the first run stopped): 360 episodes.
+trivla-drake collect --out "$DATA" --episodes-per-task 30
+# 3. System 2 on simulator-generated visual questions.
+trivla-drake train --stage vlm --out "$RUNS/vlm" --init "$RUNS/video/final" --steps 1000 --threads 2
+# 4. System 1 by flow matching (eq. 5) on cached System 2/3 features, and the ablation / data arms
+#    (same steps and batch; Systems 2 and 3 are untouched by the policy stage).
+POLICY=(train --stage policy --data "$DATA" --steps 3000 --feature-stride 3)
+trivla-drake "${POLICY[@]}" --out "$RUNS/policy" --init "$RUNS/vlm/final" --threads 2
+trivla-drake "${POLICY[@]}" --out "$RUNS/policy_s13" --init "$RUNS/video/final" --no-system2 --threads 1
+trivla-drake "${POLICY[@]}" --out "$RUNS/policy_s1" --init "$RUNS/video/final" --no-system2 --no-system3 --threads 1
+trivla-drake "${POLICY[@]}" --out "$RUNS/policy_data10" --init "$RUNS/vlm/final" --fraction 0.1 --threads 1
+# 5. The shipped checkpoint (float16 weights) and the tables.
+trivla-drake export "$RUNS/policy/final" --out models/trivla_cpu
+trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \
+    --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
+    --episodes 2 --chains 3 --workers 2 --out results
