@@ -14,6 +14,7 @@ from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.nn import TriVLA, load_checkpoint, make_config
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.datasets import select_episodes
+from trivla_drake.train.synthetic import TASKS
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
@@ -135,6 +136,16 @@ def test_fraction_keeps_a_share_of_every_task(tmp_path):
     assert select_episodes(reader, 0.5, seed=0) == chosen and select_episodes(reader, 0.5, seed=1) != chosen
     assert len(select_episodes(reader, 0.01, seed=0)) == 3  # at least one per task
     assert select_episodes(reader, 1.0, seed=0) == list(range(12))
+
+
+def test_fraction_counts_suite_tasks_not_instruction_phrasings(tmp_path):
+    from trivla_drake.train.datasets import episode_task
+
+    data = write_synthetic_dataset(tmp_path / "d", lengths=[4] * 12, image_size=16, phrasings=2)
+    reader = LeRobotReader(data)
+    assert len({reader.task_of(e) for e in range(12)}) == 6  # 3 tasks x 2 phrasings
+    chosen = select_episodes(reader, 0.25, seed=0)
+    assert sorted(episode_task(reader, e) for e in chosen) == sorted(TASKS)  # one of each task's 4, not 6
 
 
 def test_every_stage_writes_its_loss_curve(runs, tmp_path):

@@ -44,14 +44,23 @@ def episode_fingerprint(reader: LeRobotReader, episode: int) -> str:
     return hashlib.sha256(payload + cameras).hexdigest()[:16]
 
 
+TASK_NAME_KEY = "trivla/task"  # the suite task an episode demonstrates (`collect` writes it per episode)
+
+
+def episode_task(reader: LeRobotReader, episode: int) -> str:
+    """The task an episode demonstrates: the suite task name where the dataset records it (one task has
+    many instruction phrasings), else LeRobot's task, the instruction."""
+    return str(reader.episodes[episode].get(TASK_NAME_KEY) or reader.task_of(episode))
+
+
 def select_episodes(reader: LeRobotReader, fraction: float, seed: int) -> list[int]:
     """Episode indices used for training: all for fraction 1, else round(fraction x n) of each task's
-    n episodes (at least one), chosen with `seed`. Sorted."""
+    n episodes (at least one), chosen with `seed`. Sorted. Tasks are `episode_task`'s."""
     if fraction >= 1.0:
         return list(range(reader.num_episodes))
     by_task: dict[str, list[int]] = {}
     for i in range(reader.num_episodes):
-        by_task.setdefault(reader.task_of(i), []).append(i)
+        by_task.setdefault(episode_task(reader, i), []).append(i)
     rng = np.random.default_rng(seed)
     chosen: list[int] = []
     for task in sorted(by_task):

@@ -49,8 +49,11 @@ def write_synthetic_dataset(
     fps: float = 36.0,
     seed: int = 0,
     lengths: list[int] | None = None,
+    phrasings: int = 1,
 ) -> str:
-    """Writes `episodes` episodes (of `length` frames, or `lengths`) to `root`; returns the path."""
+    """Writes `episodes` episodes (of `length` frames, or `lengths`) to `root`; returns the path.
+    Episode i demonstrates task i % 3; with `phrasings` > 1 its instruction is one of that many
+    phrasings of the task and the task's name is recorded per episode, as `collect` does."""
     if os.path.exists(os.path.join(root, "meta", "info.json")):
         raise ValueError(f"{root} already holds a dataset; write the synthetic one elsewhere")
     rng = np.random.default_rng(seed)
@@ -67,5 +70,11 @@ def write_synthetic_dataset(
         action[:, :6] = 0.01 * np.diff(q[:, :6], axis=0) * fps
         action[:, 6] = np.where(np.arange(n) < n // 2, 1.0, -1.0)
         videos = {CAMERAS[0]: _frames(n, image_size, rng, color), CAMERAS[1]: _frames(n, image_size, rng, 255 - color)}
-        writer.add_episode({"observation.state": state, "action": action}, TASKS[i % len(TASKS)], videos=videos)
+        task = TASKS[i % len(TASKS)]
+        if phrasings > 1:
+            k = (i // len(TASKS)) % phrasings
+            writer.add_episode({"observation.state": state, "action": action}, f"{task} (phrasing {k})",
+                               videos=videos, extra={"trivla/task": task})
+        else:
+            writer.add_episode({"observation.state": state, "action": action}, task, videos=videos)
     return str(root)
