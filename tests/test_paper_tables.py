@@ -80,3 +80,12 @@ def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints,
     assert sorted((out / "evaluations").glob("*.json")) == stored
     third = _tables(checkpoints, out, "--no-reuse")
     assert third["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0
+
+
+def test_unknown_latency_task_is_named_before_any_work(checkpoints, tmp_path, capsys):
+    from trivla_drake.cli import main
+
+    assert main(["tables", "--full", str(checkpoints["full"]), "--out", str(tmp_path / "t"),
+                 "--latency-tasks", "lift_block,juggle"]) == 2
+    assert "unknown task 'juggle'" in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()

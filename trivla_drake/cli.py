@@ -132,6 +132,8 @@ def _cmd_tables(args) -> int:
                           results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
         config.tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
+    if args.latency_tasks:
+        config.latency_tasks = [t.strip() for t in args.latency_tasks.split(",") if t.strip()]
     _set_torch_threads(args.threads)
     report = make_tables(config)
     files = write_tables(report, args.out)
@@ -198,6 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated base seeds (default 1000,1001,1002: unseen by `collect`'s seed 0)")
     tables.add_argument("--chains", type=int, default=5, help="5-task chains per seed (default 5)")
     tables.add_argument("--latency-episodes", type=int, default=2, help="episodes per task, latency rows")
+    tables.add_argument("--latency-tasks", default=None,
+                        help="comma-separated tasks of the latency rows (default lift_block,turn_on_light,open_drawer)")
     tables.add_argument("--workers", type=int, default=1)
     tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
     tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")

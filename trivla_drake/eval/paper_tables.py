@@ -58,6 +58,10 @@ class TablesConfig:
     results_dir: str | None = None
 
     def validate(self) -> None:
+        from trivla_drake.tasks import get_task
+
+        for name in [*self.tasks, *self.latency_tasks]:
+            get_task(name)  # ValueError naming the unknown task
         unknown = sorted(set(self.checkpoints) - set(ROLES))
         if unknown:
             raise ValueError(f"checkpoint roles {unknown} are unknown; valid roles: {', '.join(ROLES)}")
