@@ -25,4 +25,5 @@ trivla-drake "${POLICY[@]}" --out "$RUNS/policy_data10" --init "$RUNS/vlm/final"
 trivla-drake export "$RUNS/policy/final" --out models/trivla_cpu
 trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \
     --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
-    --episodes 2 --chains 3 --workers 2 --out results
+    --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block \
+    --out results
