@@ -76,3 +76,22 @@ class ClosedLoop:
 def closed_loop(scenario):
     scenario.cameras = {}  # physics-only tests need no rendering
     return ClosedLoop(scenario)
+
+
+@pytest.fixture(scope="session")
+def saved(tmp_path_factory):
+    """(model, directory): an untrained tiny TriVLA with normalisation statistics, saved in float32.
+    Tests copy the directory before damaging it."""
+    from trivla_drake.nn.checkpoint import save_checkpoint
+    from trivla_drake.nn.config import make_config
+    from trivla_drake.nn.normalization import NormalizationStats
+    from trivla_drake.nn.trivla import TriVLA
+
+    directory = str(tmp_path_factory.mktemp("ckpt"))
+    model = TriVLA(make_config("tiny", init_seed=3)).eval()
+    rng = np.random.default_rng(0)
+    model.set_normalization(
+        NormalizationStats.from_data(rng.normal(size=(50, 18)), rng.uniform(-0.05, 0.05, size=(50, 10, 7)))
+    )
+    save_checkpoint(model, directory)
+    return model, directory

@@ -5,39 +5,25 @@ import os
 
 import numpy as np
 import pytest
+import torch
 
 from trivla_drake.cli import main
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
-from trivla_drake.nn.config import make_config
-from trivla_drake.nn.normalization import NormalizationStats
-from trivla_drake.nn.trivla import TriVLA
-
-
-@pytest.fixture(scope="module")
-def source(tmp_path_factory):
-    directory = str(tmp_path_factory.mktemp("fp32"))
-    model = TriVLA(make_config("tiny", init_seed=5)).eval()
-    rng = np.random.default_rng(1)
-    model.set_normalization(
-        NormalizationStats.from_data(rng.normal(size=(40, 18)), rng.uniform(-0.05, 0.05, size=(40, 10, 7)))
-    )
-    save_checkpoint(model, directory)
-    return model, directory
 
 
 def _size(directory):
     return os.path.getsize(os.path.join(directory, "model.safetensors"))
 
 
-def test_float16_export_halves_the_file_and_keeps_the_actions(source, tmp_path, capsys):
-    model, directory = source
+def test_float16_export_halves_the_file_and_keeps_the_actions(saved, tmp_path, capsys):
+    model, directory = saved
     out = tmp_path / "half"
     assert main(["export", directory, "--out", str(out)]) == 0
     assert "weights in float16" in capsys.readouterr().out
     assert _size(out) < 0.52 * _size(directory)
     loaded = load_checkpoint(str(out)).eval()
-    assert next(loaded.parameters()).dtype.is_floating_point and str(next(loaded.parameters()).dtype) == "torch.float32"
+    assert {p.dtype for p in loaded.parameters()} == {torch.float32}
     assert loaded.normalization == model.normalization
     obs = example_observation()
     full, half = model.predict_action_chunk(obs, seed=2), loaded.predict_action_chunk(obs, seed=2)
@@ -45,8 +31,8 @@ def test_float16_export_halves_the_file_and_keeps_the_actions(source, tmp_path, 
     np.testing.assert_allclose(half, full, atol=2e-2 * max(1.0, float(np.abs(full).max())))
 
 
-def test_failed_export_leaves_the_existing_target_intact(source, tmp_path, capsys):
-    _, directory = source
+def test_failed_export_leaves_the_existing_target_intact(saved, tmp_path, capsys):
+    _, directory = saved
     target = tmp_path / "shipped"
     assert main(["export", directory, "--out", str(target)]) == 0
     before = (target / "model.safetensors").read_bytes()
@@ -60,7 +46,7 @@ def test_failed_export_leaves_the_existing_target_intact(source, tmp_path, capsy
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp-")]
 
 
-def test_unknown_weights_dtype_names_the_field(source, tmp_path):
-    model, _ = source
+def test_unknown_weights_dtype_names_the_field(saved, tmp_path):
+    model, _ = saved
     with pytest.raises(ValueError, match="weights_dtype"):
         save_checkpoint(model, str(tmp_path / "x"), weights_dtype="int8")

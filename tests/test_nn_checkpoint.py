@@ -7,24 +7,13 @@ import numpy as np
 import pytest
 
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
+from trivla_drake.nn.checkpoint import load_checkpoint
 from trivla_drake.nn.config import config_to_dict, make_config
-from trivla_drake.nn.normalization import NormalizationStats
 from trivla_drake.nn.trivla import TriVLA
 
 
 
 
-@pytest.fixture(scope="module")
-def saved(tmp_path_factory):
-    directory = str(tmp_path_factory.mktemp("ckpt"))
-    model = TriVLA(make_config("tiny", init_seed=3)).eval()
-    rng = np.random.default_rng(0)
-    model.set_normalization(
-        NormalizationStats.from_data(rng.normal(size=(50, 18)), rng.uniform(-0.05, 0.05, size=(50, 10, 7)))
-    )
-    save_checkpoint(model, directory)
-    return model, directory
 
 
 def test_save_then_load_gives_identical_outputs(saved):

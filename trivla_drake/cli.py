@@ -6,8 +6,8 @@ import argparse
 import json
 import logging
 import os
-from pathlib import Path
 import sys
+from pathlib import Path
 
 # On a 2-core machine shared with physics and rendering, OpenMP threads that spin while waiting
 # turn a 0.1 s inference into seconds; passive waiting keeps them polite. Must precede torch.
@@ -112,13 +112,17 @@ def _cmd_demo(args) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"| episode | task | instruction | success | sim time [s] |\n| --- | --- | --- | --- | --- |")
+        print("| episode | task | instruction | success | sim time [s] |\n| --- | --- | --- | --- | --- |")
         for i, e in enumerate(result["episodes"]):
             print(f"| {i} | {e['task']} | {e['instruction']} | {'yes' if e['success'] else 'no: ' + e['reason']} "
                   f"| {e['sim_time']:.2f} |")
         print(f"\nsuccess rate {result['success_rate']:.2f}, control {result['control_hz']:.1f} Hz in sim time, "
               f"real-time factor {result['realtime_factor']:.2f} ({result['policy']}, latency {result['latency']})")
     return 0
+
+
+def _names(comma_separated: str) -> list[str]:
+    return [name.strip() for name in comma_separated.split(",") if name.strip()]
 
 
 def _cmd_tables(args) -> int:
@@ -131,9 +135,9 @@ def _cmd_tables(args) -> int:
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
                           results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
-        config.tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
+        config.tasks = _names(args.tasks)
     if args.latency_tasks:
-        config.latency_tasks = [t.strip() for t in args.latency_tasks.split(",") if t.strip()]
+        config.latency_tasks = _names(args.latency_tasks)
     _set_torch_threads(args.threads)
     report = make_tables(config)
     files = write_tables(report, args.out)
@@ -149,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     commands = parser.add_subparsers(dest="command", required=True)
+    from trivla_drake.eval.evaluate import EVAL_BASE_SEED
+    from trivla_drake.eval.paper_tables import TablesConfig
 
     sim = commands.add_parser("sim", help="run the station closed loop along a scripted end-effector path")
     sim.add_argument("--seconds", type=float, default=8.0, help="simulated time [s] (default 8)")
@@ -166,8 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--task", default="place_in_bowl", help="task name (see `trivla-drake evaluate --help`)")
     demo.add_argument("--instruction", help="say this instead of the task's own instruction")
     demo.add_argument("--episodes", type=int, default=1)
-    demo.add_argument("--seed", type=int, default=1000,
-                      help="base seed (default 1000: scenes unseen by demonstrations collected with seed 0)")
+    demo.add_argument("--seed", type=int, default=EVAL_BASE_SEED,
+                      help=f"base seed (default {EVAL_BASE_SEED}: scenes unseen by demonstrations collected with seed 0)")
     demo.add_argument("--latency", default="zero", help="zero, measured (each inference's wall time) or seconds")
     demo.add_argument("--max-seconds", type=float, default=None,
                       help="episode time limit in sim seconds (default: the task's own limit)")
@@ -196,8 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--out", required=True, help="folder for report.md, report.json and the plots")
     tables.add_argument("--tasks", default="all")
     tables.add_argument("--episodes", type=int, default=5, help="episodes per task and seed (default 5)")
-    tables.add_argument("--seeds", default="1000,1001,1002",
-                        help="comma-separated base seeds (default 1000,1001,1002: unseen by `collect`'s seed 0)")
+    default_seeds = ",".join(map(str, TablesConfig.seeds))
+    tables.add_argument("--seeds", default=default_seeds,
+                        help=f"comma-separated base seeds (default {default_seeds}: unseen by `collect`'s seed 0)")
     tables.add_argument("--chains", type=int, default=5, help="5-task chains per seed (default 5)")
     tables.add_argument("--latency-episodes", type=int, default=2, help="episodes per task, latency rows")
     tables.add_argument("--latency-tasks", default=None,

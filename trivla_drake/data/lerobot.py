@@ -40,6 +40,9 @@ VIDEO_PATH = "videos/{video_key}/" + CHUNK_FILE + ".mp4"
 EPISODES_PATH = "meta/episodes/" + CHUNK_FILE + ".parquet"
 INFO_PATH = "meta/info.json"
 STATS_PATH = "meta/stats.json"
+# Episode-metadata column naming the suite task an episode demonstrates (`collect` writes it; LeRobot's
+# own task is the instruction, and one task has many phrasings).
+EPISODE_TASK_KEY = "trivla/task"
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},

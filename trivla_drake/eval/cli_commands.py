@@ -15,6 +15,7 @@ import argparse
 import json
 import sys
 
+from trivla_drake.eval.evaluate import EVAL_BASE_SEED
 from trivla_drake.tasks.suite import TASK_NAMES
 
 
@@ -111,8 +112,9 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                         help="oracle, random, trivla (the shipped checkpoint models/trivla_cpu) or a checkpoint directory")
     parser.add_argument("--tasks", default="all", help=f"all, or comma-separated names: {', '.join(TASK_NAMES)}")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per task (default 10; 0: chains only)")
-    parser.add_argument("--seed", type=int, default=1000,
-                        help="base seed (default 1000: scenes unseen by demonstrations collected with seed 0)")
+    parser.add_argument("--seed", type=int, default=EVAL_BASE_SEED,
+                        help=f"base seed (default {EVAL_BASE_SEED}: scenes unseen by demonstrations collected "
+                             "with seed 0)")
     parser.add_argument("--chains", type=int, default=0, help="chains of 5 tasks to run (default 0)")
     parser.add_argument("--paraphrases", action="store_true", help="use held-out instruction paraphrases")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")

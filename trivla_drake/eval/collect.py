@@ -19,7 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.data.lerobot import LeRobotWriter, image_stats, vector_feature, video_feature
+from trivla_drake.data.lerobot import (
+    EPISODE_TASK_KEY,
+    LeRobotWriter,
+    image_stats,
+    vector_feature,
+    video_feature,
+)
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
 
@@ -149,8 +155,8 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     shutil.rmtree(root / STAGING, ignore_errors=True)  # videos of attempts that were never committed
     done: dict[str, set[int]] = {t: set() for t in config.tasks}
     for row in writer.episode_rows():
-        if row.get("trivla/task") in done:
-            done[row["trivla/task"]].add(int(row["trivla/attempt"]))
+        if row.get(EPISODE_TASK_KEY) in done:
+            done[row[EPISODE_TASK_KEY]].add(int(row["trivla/attempt"]))
     target = config.episodes_per_task * len(config.tasks)
     bar = tqdm(total=target, initial=sum(min(len(v), config.episodes_per_task) for v in done.values()),
                desc="collect", unit="ep", disable=not progress)
@@ -173,7 +179,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                     videos=result["videos"],
                     video_stats=result["video_stats"],
                     extra={
-                        "trivla/task": task,
+                        EPISODE_TASK_KEY: task,
                         "trivla/attempt": attempt,
                         "trivla/seed": result["seed"],
                         "trivla/params": list(result["params"]),

@@ -67,6 +67,21 @@ def _publish(tmp: Path, target: Path) -> None:
         os.close(fd)
 
 
+def _write_folder_atomically(target: str | os.PathLike, fill) -> Path:
+    """Calls fill(tmp) on a fresh temporary folder next to `target`, then publishes it as `target`;
+    the temporary folder is removed if `fill` fails, and an existing `target` stays intact."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        fill(tmp)
+        _publish(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
 def write_checkpoint(
     target: str | os.PathLike,
     *,
@@ -75,32 +90,19 @@ def write_checkpoint(
     config: TrainConfig,
 ) -> Path:
     """Writes a complete training checkpoint to `target` atomically; returns its path."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
+
+    def fill(tmp: Path) -> None:
         save_checkpoint(model, str(tmp))
         torch.save(train_state, tmp / STATE_FILE)
         (tmp / STEP_FILE).write_text(json.dumps({"step": int(train_state["step"])}))
         config.save(str(tmp / TRAIN_CONFIG_FILE))
-        _publish(tmp, target)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return target
+
+    return _write_folder_atomically(target, fill)
 
 
 def copy_checkpoint(source: str | os.PathLike, target: str | os.PathLike) -> Path:
     """Copies a complete checkpoint folder to `target` atomically."""
-    source, target = Path(source), Path(target)
-    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
-        shutil.copytree(source, tmp)
-        _publish(tmp, target)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return target
+    return _write_folder_atomically(target, lambda tmp: shutil.copytree(source, tmp))
 
 
 def export_checkpoint(source: str | os.PathLike, target: str | os.PathLike, *, weights_dtype: str = "float16") -> Path:
@@ -110,16 +112,7 @@ def export_checkpoint(source: str | os.PathLike, target: str | os.PathLike, *, w
     from trivla_drake.nn.checkpoint import load_checkpoint
 
     model = load_checkpoint(str(source))
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
-        save_checkpoint(model, str(tmp), weights_dtype=weights_dtype)
-        _publish(tmp, target)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return target
+    return _write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
 
 
 def list_checkpoints(out: str | os.PathLike) -> list[tuple[int, Path]]:

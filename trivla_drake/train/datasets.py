@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotReader
 from trivla_drake.data.samples import TrainingSamples
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
@@ -44,13 +44,10 @@ def episode_fingerprint(reader: LeRobotReader, episode: int) -> str:
     return hashlib.sha256(payload + cameras).hexdigest()[:16]
 
 
-TASK_NAME_KEY = "trivla/task"  # the suite task an episode demonstrates (`collect` writes it per episode)
-
-
 def episode_task(reader: LeRobotReader, episode: int) -> str:
     """The task an episode demonstrates: the suite task name where the dataset records it (one task has
     many instruction phrasings), else LeRobot's task, the instruction."""
-    return str(reader.episodes[episode].get(TASK_NAME_KEY) or reader.task_of(episode))
+    return str(reader.episodes[episode].get(EPISODE_TASK_KEY) or reader.task_of(episode))
 
 
 def select_episodes(reader: LeRobotReader, fraction: float, seed: int) -> list[int]:

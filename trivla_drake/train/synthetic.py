@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from trivla_drake.data.lerobot import LeRobotWriter, vector_feature, video_feature
+from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotWriter, vector_feature, video_feature
 from trivla_drake.nn.config import EE_DELTA_ACTION_NAMES, PANDA_STATE_NAMES
 
 CAMERAS = ("observation.images.static", "observation.images.wrist")
@@ -71,10 +71,7 @@ def write_synthetic_dataset(
         action[:, 6] = np.where(np.arange(n) < n // 2, 1.0, -1.0)
         videos = {CAMERAS[0]: _frames(n, image_size, rng, color), CAMERAS[1]: _frames(n, image_size, rng, 255 - color)}
         task = TASKS[i % len(TASKS)]
-        if phrasings > 1:
-            k = (i // len(TASKS)) % phrasings
-            writer.add_episode({"observation.state": state, "action": action}, f"{task} (phrasing {k})",
-                               videos=videos, extra={"trivla/task": task})
-        else:
-            writer.add_episode({"observation.state": state, "action": action}, task, videos=videos)
+        instruction = task if phrasings == 1 else f"{task} (phrasing {(i // len(TASKS)) % phrasings})"
+        writer.add_episode({"observation.state": state, "action": action}, instruction, videos=videos,
+                           extra={EPISODE_TASK_KEY: task} if phrasings > 1 else None)
     return str(root)
