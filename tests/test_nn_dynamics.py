@@ -1,6 +1,8 @@
 """System 3: eq. 2-3 feature shapes, exactly one UNet pass per inference, nothing past the last used
 up-block, and the eq. (1) video loss."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -10,8 +12,6 @@ from trivla_drake.nn import noise_schedule
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.trivla import TriVLA
-
-
 
 
 @pytest.fixture(scope="module")
@@ -68,12 +68,13 @@ def test_features_equal_the_full_unet_up_block_outputs(model):
     frames = torch.from_numpy(example_observation()["static_rgb"])[None]
     ids = model._dyn_instruction_ids(["open the drawer"], "instruction")
     with torch.no_grad():
-        features = dyn(frames, ids, generator=torch.Generator().manual_seed(5))
+        features = dyn(frames, ids, generator=torch.Generator().manual_seed(5))  # unused: fixed noise
         # Rebuild the same UNet input by hand and run the whole UNet, recording the up-blocks.
         condition = dyn.encode_frames(frames).mode()
         sigma = torch.tensor([dyn.config.sigma_max])
         eps = torch.randn(
-            (1, dyn.num_frames, *condition.shape[1:]), generator=torch.Generator().manual_seed(5)
+            (1, dyn.num_frames, *condition.shape[1:]),
+            generator=torch.Generator().manual_seed(dyn.config.feature_noise_seed),
         )
         sample = dyn._unet_input(noise_schedule.c_in(sigma) * sigma * eps, condition)
         recorded = []
@@ -91,13 +92,38 @@ def test_features_equal_the_full_unet_up_block_outputs(model):
     torch.testing.assert_close(features, expected)
 
 
-def test_seeded_features_are_reproducible(model):
+def test_fixed_noise_features_depend_on_the_frame_alone(model):
+    """Default feature_noise="fixed": the same frame gives the same F_p whatever the seed, and a frame's
+    features do not depend on what else is in the batch; different frames give different features."""
+    obs = example_observation()
+    a = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=11)
+    b = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=12)
+    assert model.config.dynamics.feature_noise == "fixed"
+    assert np.array_equal(a["static"], b["static"]) and np.array_equal(a["wrist"], b["wrist"])
+    other = example_observation(seed=5)
+    c = model.encode_dynamics(other["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=11)
+    assert not np.allclose(a["static"], c["static"])
+    frames = torch.from_numpy(np.stack([obs["static_rgb"], other["static_rgb"]]))
+    ids = model._dyn_instruction_ids([obs["instruction"]] * 2, "instruction")
+    with torch.no_grad():
+        batched = model.dynamics(frames, ids)
+    torch.testing.assert_close(batched[0], torch.from_numpy(a["static"]), rtol=1e-4, atol=1e-5)
+
+
+def test_random_noise_features_follow_the_seed():
+    model = TriVLA(make_config("tiny")).eval()
+    model.dynamics.config.feature_noise = "random"
     obs = example_observation()
     a = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=11)
     b = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=11)
     c = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=12)
     assert np.array_equal(a["static"], b["static"]) and np.array_equal(a["wrist"], b["wrist"])
     assert not np.allclose(a["static"], c["static"])
+
+
+def test_unknown_feature_noise_is_rejected():
+    with pytest.raises(ValueError, match="dynamics.feature_noise"):
+        TriVLA(make_config("tiny", dynamics=dataclasses.replace(make_config("tiny").dynamics, feature_noise="gauss")))
 
 
 def test_video_loss_reconstructs_clips_and_trains_only_the_unet_side(model):

@@ -18,8 +18,6 @@ from trivla_drake.train.synthetic import TASKS
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """video -> vlm -> policy on a 3-episode synthetic dataset."""
@@ -83,6 +81,27 @@ def test_policy_stage_trains_system1_with_the_dataset_normalisation(runs):
     assert norm.action_max == pytest.approx(stats["action"]["max"])
     meta = json.loads((runs["root"] / "policy" / "final" / "train_config.json").read_text())
     assert meta["stage"] == "policy" and meta["init"] == runs["vlm"]["final_checkpoint"]
+
+
+def test_policy_stage_standardises_the_cached_features(runs):
+    """System 1 reads Q_vl and F_p standardised with the statistics of the cached training features."""
+    from pathlib import Path
+
+    from safetensors import safe_open
+
+    policy = load_checkpoint(runs["policy"]["final_checkpoint"]).policy
+    q_vl, static = [], []
+    for path in sorted(Path(runs["policy"]["feature_cache"]).glob("*.safetensors")):
+        with safe_open(str(path), framework="pt") as f:
+            q_vl.append(f.get_tensor("q_vl").float()[:, : policy.vl_standardizer.positions])
+            static.append(f.get_tensor("dynamics_static").float().flatten(0, 1))
+    assert runs["policy"]["feature_statistics_frames"] == 3 * 24
+    with torch.no_grad():
+        z = policy.vl_standardizer(torch.cat(q_vl))[:, : policy.vl_standardizer.positions]
+        z_static = policy.dynamics_standardizers[0](torch.cat(static))
+    assert z.mean(0).abs().max() < 1e-3 and z_static.mean(0).abs().max() < 1e-3
+    assert 0.8 < float(z.std(0, unbiased=False).median()) < 1.01
+    assert 0.8 < float(z_static.std(0, unbiased=False).median()) < 1.01
 
 
 def test_feature_cache_holds_system2_3_outputs_and_is_computed_once(runs, tmp_path):

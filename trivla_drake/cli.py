@@ -149,6 +149,25 @@ def _cmd_tables(args) -> int:
     return 0
 
 
+def _cmd_probe(args) -> int:
+    from trivla_drake.data.lerobot import LeRobotReader
+    from trivla_drake.eval.feature_probe import format_probe_table, probe_block_positions
+    from trivla_drake.eval.model_loading import load_model
+
+    if args.episodes is not None and args.episodes < 10:
+        raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
+    _set_torch_threads(args.threads)
+    reader = LeRobotReader(args.data)
+    model = load_model(args.checkpoint)
+    results = probe_block_positions(model, reader, max_episodes=args.episodes)
+    episodes = reader.num_episodes if args.episodes is None else min(args.episodes, reader.num_episodes)
+    if args.json:
+        print(json.dumps({"episodes": episodes, "results": [r.to_dict() for r in results]}))
+    else:
+        print(format_probe_table(results, episodes))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
@@ -217,6 +236,15 @@ def build_parser() -> argparse.ArgumentParser:
                              "killed or extended run redoes only what is missing)")
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
+
+    probe = commands.add_parser("probe", help="linear probes: how well System 2's and System 3's features "
+                                "locate the blocks (held-out R^2), with raw pixels as reference")
+    probe.add_argument("--data", required=True, help="dataset written by `collect`")
+    probe.add_argument("--checkpoint", default=None, help="TriVLA checkpoint (default: models/trivla_cpu)")
+    probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
+    probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    probe.set_defaults(run=_cmd_probe)
 
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")

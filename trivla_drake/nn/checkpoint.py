@@ -155,7 +155,9 @@ def load_checkpoint(
 def _load_weights(model: TriVLA, state: dict[str, torch.Tensor], source: str) -> None:
     aliases = _aliases(model)
     expected = model.state_dict()
-    missing = [k for k in expected if k not in state and k not in aliases]
+    # Checkpoints from before System 1 standardised its features lack those statistics: they stay the
+    # identity, which is what such a checkpoint was trained with.
+    missing = [k for k in expected if k not in state and k not in aliases and "standardizer" not in k]
     unexpected = [k for k in state if k not in expected]
     mismatched = [
         f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(expected[k].shape)}"

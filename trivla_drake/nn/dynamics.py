@@ -195,14 +195,15 @@ class DynamicsPerceptionModule(nn.Module):
     def forward(
         self, frames: torch.Tensor, instruction_ids: list[list[int]], *, generator: torch.Generator | None = None
     ) -> torch.Tensor:
-        """One-pass predictive features F_p (B, T+1, sum C_m, H_p, W_p) of current frames uint8 (B, H, W, 3)."""
+        """One-pass predictive features F_p (B, T+1, sum C_m, H_p, W_p) of current frames uint8 (B, H, W, 3).
+        `generator` draws the noise latents only with `feature_noise="random"`."""
         batch = frames.shape[0]
         device = self.text_projection.weight.device
         condition = self.encode_frames(frames).mode()  # SVD conditions on the unscaled latent mode
         text = self.encode_text(instruction_ids)
         sigma = torch.full((batch,), self.config.sigma_max, dtype=torch.float32)
         shape = (batch, self.num_frames, condition.shape[1], condition.shape[2], condition.shape[3])
-        eps = torch.randn(shape, generator=generator, dtype=torch.float32)
+        eps = self._feature_noise(shape, generator)
         noisy = (noise_schedule.c_in(sigma) * sigma).view(-1, 1, 1, 1, 1) * eps  # c_in * (x_0 ~ 0 + sigma eps)
         sample = self._unet_input(noisy.to(device, self._dtype), condition)
         timestep = noise_schedule.c_noise(sigma).to(device, self._dtype)
@@ -218,6 +219,13 @@ class DynamicsPerceptionModule(nn.Module):
         ]  # each (B*(T+1), C_m, H_p, W_p)
         features = torch.cat(resized, dim=1)
         return features.unflatten(0, (batch, self.num_frames))
+
+    def _feature_noise(self, shape: tuple[int, ...], generator: torch.Generator | None) -> torch.Tensor:
+        """Unit Gaussian noise latents (B, T, C, h, w) of the one-pass features (see `feature_noise`)."""
+        if self.config.feature_noise == "random":
+            return torch.randn(shape, generator=generator, dtype=torch.float32)
+        fixed = torch.Generator().manual_seed(self.config.feature_noise_seed)
+        return torch.randn((1, *shape[1:]), generator=fixed, dtype=torch.float32).expand(shape)
 
     @torch.no_grad()
     def predict_clip(

@@ -12,6 +12,7 @@ from trivla_drake.nn import flow_matching
 from trivla_drake.nn.config import PolicyConfig
 from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
+from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
 from trivla_drake.nn.video_former import VideoFormer
 
 
@@ -41,7 +42,10 @@ class FlowMatchingPolicy(nn.Module):
         *,
         vl_dim: int | None,
         dynamics_feature_shape: tuple[int, int, int, int] | None,
+        vl_fixed_positions: int = 0,
     ) -> None:
+        """`vl_fixed_positions`: how many leading Q_vl tokens (prompt head and image tokens) are the same
+        kind in every prompt, so each gets its own standardisation statistics."""
         super().__init__()
         self.config = config
         dim, num_emb = config.hidden_size, config.num_embodiments
@@ -55,10 +59,15 @@ class FlowMatchingPolicy(nn.Module):
         self.uses_vl = vl_dim is not None
         self.uses_dynamics = dynamics_feature_shape is not None
         if self.uses_vl:
+            self.vl_standardizer = SequenceStandardizer(vl_fixed_positions, vl_dim)
             self.vl_norm = nn.LayerNorm(vl_dim)
             self.vl_proj = nn.Linear(vl_dim, dim)
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
+            # One set of statistics per view and feature element, shared by the T+1 frames.
+            self.dynamics_standardizers = nn.ModuleList(
+                [FeatureStandardizer((channels, size, size)) for _ in ("static", "wrist")]
+            )
             self.video_former = VideoFormer(
                 feature_channels=channels,
                 num_frames=frames,
@@ -80,8 +89,9 @@ class FlowMatchingPolicy(nn.Module):
         return self.state_encoder(state, embodiment_id)
 
     def aggregate_dynamics(self, static: torch.Tensor, wrist: torch.Tensor) -> torch.Tensor:
-        """F_p of both views (B, T, C, H_p, W_p) -> Q_p (B, T*L, former_dim), eq. (4)."""
-        return self.video_former([static, wrist])
+        """F_p of both views (B, T, C, H_p, W_p) -> Q_p (B, T*L, former_dim), eq. (4), on standardised features."""
+        views = [standardize(f) for standardize, f in zip(self.dynamics_standardizers, (static, wrist))]
+        return self.video_former(views)
 
     def memory(
         self, q_vl: torch.Tensor | None, q_vl_mask: torch.Tensor | None, q_p: torch.Tensor | None, batch: int
@@ -91,7 +101,7 @@ class FlowMatchingPolicy(nn.Module):
         if self.uses_vl:
             if q_vl is None:
                 raise ValueError("q_vl is required: System 2 is enabled in this model")
-            parts.append(self.vl_proj(self.vl_norm(q_vl)) + self.source_embed[0])
+            parts.append(self.vl_proj(self.vl_norm(self.vl_standardizer(q_vl))) + self.source_embed[0])
             masks.append(
                 q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
             )

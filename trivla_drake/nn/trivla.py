@@ -89,6 +89,7 @@ class TriVLA(nn.Module):
                 config.policy,
                 vl_dim=self.vision_language.hidden_size if self.vision_language else None,
                 dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
+                vl_fixed_positions=self.vision_language.instruction_offset(2) if self.vision_language else 0,
             )
         pol = config.policy
         stats = normalization or NormalizationStats.identity(pol.state_dim, pol.action_dim)
@@ -276,7 +277,8 @@ class TriVLA(nn.Module):
         self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, *, seed: int | None = None
     ) -> dict[str, np.ndarray]:
         """System 3, one UNet pass for both views. Returns {"static": F_p, "wrist": F_p}, each float32
-        (T+1, sum C_m, H_p, W_p); an empty dict when System 3 is disabled. `seed` fixes the noise latents."""
+        (T+1, sum C_m, H_p, W_p); an empty dict when System 3 is disabled. `seed` draws the noise latents
+        when dynamics.feature_noise is "random" (by default they are fixed, see DynamicsConfig)."""
         size = self.image_size
         static = check_image("static_rgb", static_rgb, size)
         wrist = check_image("wrist_rgb", wrist_rgb, size)

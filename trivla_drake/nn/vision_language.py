@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from trivla_drake.nn import pretrained
-from trivla_drake.nn.chat_prompt import ChatPrompt, build_chat_prompt
+from trivla_drake.nn.chat_prompt import PROMPT_AFTER_IMAGES, ChatPrompt, build_chat_prompt
 from trivla_drake.nn.config import VisionLanguageConfig
 from trivla_drake.nn.early_exit import run_until
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
@@ -108,6 +108,13 @@ class VisionLanguageModule(nn.Module):
     def hidden_size(self) -> int:
         """Width of Q_vl (the LLM's hidden size)."""
         return self.llm.config.hidden_size
+
+    def instruction_offset(self, num_views: int) -> int:
+        """Position of the instruction's first token in Q_vl: the prompt head, the image tokens and the
+        markup between them come first and are laid out the same in every prompt."""
+        pieces = build_chat_prompt(self.tokenizer, [], num_views).text_pieces
+        head = sum(len(p) for p in pieces[:-1]) + num_views * self.num_image_tokens
+        return head + len(self.tokenizer.encode(PROMPT_AFTER_IMAGES))
 
     @property
     def readout_layer(self) -> nn.Module:

@@ -30,7 +30,7 @@ from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.datasets import episode_fingerprint, resize_frames
 from trivla_drake.train.distributed import DistEnv
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: System 3 features with the config's feature_noise
 _DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32}
 
 
@@ -59,6 +59,8 @@ def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
         "wrist_camera": config.wrist_camera,
         "system2": model.vision_language is not None,
         "system3": model.dynamics is not None,
+        "dynamics_feature_noise": None if model.dynamics is None else (
+            model.config.dynamics.feature_noise, model.config.dynamics.feature_noise_seed),
     }
     hasher.update(json.dumps(settings, sort_keys=True).encode())
     hash_module_weights(model.vision_language, hasher)

@@ -362,6 +362,10 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     prepare_started = time.time()
     dataset, collate, data_summary = _prepare_data(config, model, reader, env)
+    if config.stage == "policy" and train_state is None:  # a resumed run keeps its checkpoint's statistics
+        from trivla_drake.train.feature_statistics import fit_feature_standardizers
+
+        data_summary.update(fit_feature_standardizers(model, dataset.shards, progress=config.progress and env.is_main))
     data_summary["data_prepare_s"] = time.time() - prepare_started
     start_step = int(train_state["step"]) if train_state else 0
     if train_state and train_state.get("world_size") != env.world_size:

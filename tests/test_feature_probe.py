@@ -1,0 +1,80 @@
+"""Linear probes of System 2/3 features: the ridge read-out, the scene rebuild it is scored against,
+the feature sets it reads, and the CLI's errors."""
+
+import numpy as np
+import pytest
+
+from trivla_drake.cli import main
+from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.eval.feature_probe import first_frame_block_positions, first_frame_features, ridge_probe
+from trivla_drake.tasks.scene import BLOCK_COLORS
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+def test_ridge_probe_finds_a_linear_code_and_not_noise():
+    rng = np.random.default_rng(0)
+    features = rng.normal(size=(120, 40))
+    targets = features @ rng.normal(size=(40, 2)) + 0.01 * rng.normal(size=(120, 2))
+    r2, rmse, ridge = ridge_probe(features, targets)
+    assert r2.shape == (2,) and (r2 > 0.9).all() and (rmse < 0.5 * targets.std(0)).all() and ridge > 0
+    r2_noise, _, _ = ridge_probe(features, rng.normal(size=(120, 2)))
+    assert (r2_noise < 0.2).all()
+
+
+@pytest.mark.parametrize(
+    "features, targets, message",
+    [
+        (np.zeros(20), np.zeros((20, 2)), "features must be 2-D"),
+        (np.zeros((20, 4)), np.zeros(20), "targets must be 2-D"),
+        (np.zeros((20, 4)), np.zeros((19, 2)), "features has 20 rows but targets has 19"),
+        (np.zeros((6, 4)), np.zeros((6, 2)), "folds"),
+        (np.full((20, 4), np.nan), np.zeros((20, 2)), "finite"),
+    ],
+)
+def test_ridge_probe_rejects_bad_input(features, targets, message):
+    with pytest.raises(ValueError, match=message):
+        ridge_probe(features, targets)
+
+
+def test_block_positions_are_the_scene_the_demonstration_saw(tmp_path):
+    """Rebuilt from the recorded task and seed, the instructed block is where the oracle grasped."""
+    from trivla_drake.eval.collect import CollectConfig, collect
+
+    collect(CollectConfig(out=str(tmp_path / "d"), episodes_per_task=1, tasks=["lift_block"], image_size=32),
+            progress=False)
+    reader = LeRobotReader(tmp_path / "d")
+    positions = first_frame_block_positions(reader, [0])
+    assert positions.shape == (1, 2 * len(BLOCK_COLORS))
+    frames = reader.episode_frames(0)
+    grasp = int(np.nonzero(frames["action"][:, 6] < 0)[0][0])
+    color = reader.episodes[0]["trivla/params"][0]
+    block = positions[0, 2 * BLOCK_COLORS.index(color) : 2 * BLOCK_COLORS.index(color) + 2]
+    assert np.linalg.norm(frames["observation.tcp_pose"][grasp, :2] - block) < 0.02
+
+
+def test_feature_sets_of_the_first_frames(saved, tmp_path):
+    model, _ = saved
+    data = write_synthetic_dataset(tmp_path / "d", episodes=3, length=6, image_size=16)
+    features = first_frame_features(model, LeRobotReader(data), [0, 1, 2], batch=2)
+    names = sorted(features)
+    assert any(n.startswith("System 2 image tokens") for n in names)
+    assert any(n.startswith("System 2 Q_vl") for n in names)
+    assert any(n.startswith("System 3 F_p") for n in names)
+    assert any(n.startswith("pixels 32x32") for n in names)
+    for name, values in features.items():
+        assert values.shape[0] == 3 and np.isfinite(values).all(), name
+    vl = model.vision_language
+    tokens = vl.config.vision.image_size // vl.config.vision.patch_size
+    image_tokens = int(tokens * tokens * vl.config.pixel_shuffle_ratio**2)
+    q_vl = next(v for n, v in features.items() if n.startswith("System 2 Q_vl"))
+    assert q_vl.shape[1] == image_tokens * vl.hidden_size
+
+
+def test_probe_cli_errors_name_the_problem(saved, tmp_path, capsys):
+    _, checkpoint = saved
+    data = write_synthetic_dataset(tmp_path / "d", episodes=12, length=4, image_size=16)
+    assert main(["probe", "--data", data, "--checkpoint", checkpoint, "--episodes", "5"]) == 2
+    assert "--episodes must be at least 10" in capsys.readouterr().err
+    assert main(["probe", "--data", data, "--checkpoint", checkpoint]) == 2
+    assert "not written by `collect`" in capsys.readouterr().err
+    assert main(["probe", "--data", str(tmp_path / "missing"), "--checkpoint", checkpoint]) == 2
