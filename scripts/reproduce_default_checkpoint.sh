@@ -14,8 +14,9 @@ trivla-drake train --stage video --data "$DATA" --out "$RUNS/video" --preset cpu
 trivla-drake collect --out "$DATA" --episodes-per-task 30
 # 3. System 2 on simulator-generated visual questions.
 trivla-drake train --stage vlm --out "$RUNS/vlm" --init "$RUNS/video/final" --steps 1000 --threads 2
-# 4. System 1 by flow matching (eq. 5) on cached System 2/3 features, and the ablation / data arms
-#    (same steps and batch; Systems 2 and 3 are untouched by the policy stage).
+# 4. System 1 by flow matching (eq. 5) on cached System 2/3 features (standardised with statistics
+#    of the training episodes), and the ablation / data arms (same steps and batch; Systems 2 and 3
+#    are untouched by the policy stage).
 POLICY=(train --stage policy --data "$DATA" --steps 3000 --feature-stride 3)
 trivla-drake "${POLICY[@]}" --out "$RUNS/policy" --init "$RUNS/vlm/final" --threads 2
 trivla-drake "${POLICY[@]}" --out "$RUNS/policy_s13" --init "$RUNS/video/final" --no-system2 --threads 1
@@ -27,3 +28,14 @@ trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final
     --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
     --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block \
     --out results
+# 6. How well the frozen features locate the blocks (linear probes), with System 3's noise fixed / random.
+trivla-drake probe --data "$DATA" --checkpoint models/trivla_cpu --threads 2 > results/feature_probe.md
+trivla-drake probe --data "$DATA" --checkpoint models/trivla_cpu --threads 2 --feature-noise random \
+    > results/feature_probe_random_noise.md
+# 7. Optional (reported in the README, not shipped): 3000 more System 1 steps at 3x the learning rate,
+#    then `trivla-drake evaluate --policy "$RUNS/policy_longer/final" --episodes 2 --chains 3 --seed S`
+#    for S in 1000 1001 1002.
+if [[ "${LONGER:-0}" == 1 ]]; then
+  trivla-drake train --stage policy --data "$DATA" --out "$RUNS/policy_longer" --init "$RUNS/policy/final" \
+      --lr 3e-4 --steps 3000 --feature-stride 3 --seed 1 --threads 2
+fi

@@ -159,6 +159,8 @@ def _cmd_probe(args) -> int:
     _set_torch_threads(args.threads)
     reader = LeRobotReader(args.data)
     model = load_model(args.checkpoint)
+    if args.feature_noise and model.dynamics is not None:
+        model.dynamics.config.feature_noise = args.feature_noise
     results = probe_block_positions(model, reader, max_episodes=args.episodes)
     episodes = reader.num_episodes if args.episodes is None else min(args.episodes, reader.num_episodes)
     if args.json:
@@ -242,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--data", required=True, help="dataset written by `collect`")
     probe.add_argument("--checkpoint", default=None, help="TriVLA checkpoint (default: models/trivla_cpu)")
     probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
+    probe.add_argument("--feature-noise", choices=("fixed", "random"), default=None,
+                       help="System 3's noise latents for this probe (default: the checkpoint's setting)")
     probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     probe.set_defaults(run=_cmd_probe)
