@@ -118,6 +118,8 @@ def first_frame_features(model: TriVLA, reader: LeRobotReader, episodes: list[in
     wrist_t = torch.from_numpy(resize_frames(wrist, model.image_size))
     instructions = [reader.task_of(e) for e in episodes]
     vl = model.vision_language
+    # The static view's image tokens follow the prompt head, which is the same in every prompt.
+    static_first = len(vl.build_prompts([[]], 2)[0].text_pieces[0]) if vl is not None else 0
     for start in range(0, len(episodes), batch):
         s, w = static_t[start : start + batch], wrist_t[start : start + batch]
         texts = instructions[start : start + batch]
@@ -125,11 +127,8 @@ def first_frame_features(model: TriVLA, reader: LeRobotReader, episodes: list[in
             tokens = vl.encode_images(s.to(model.device))
             out.setdefault("System 2 image tokens, static view (projector output)", []).append(tokens.flatten(1))
             q_vl, _ = model.encode_vision_language_batch(s, w, texts)
-            ids = model._vl_instruction_ids(texts, "instruction")
-            for b, prompt in enumerate(vl.build_prompts(ids, 2)):
-                first = len(prompt.text_pieces[0])
-                row = q_vl[b, first : first + tokens.shape[1]].flatten()
-                out.setdefault(f"System 2 Q_vl, static-view tokens (LLM layer {vl.config.select_layer})", []).append(row[None])
+            static_q_vl = q_vl[:, static_first : static_first + tokens.shape[1]].flatten(1)
+            out.setdefault(f"System 2 Q_vl, static-view tokens (LLM layer {vl.config.select_layer})", []).append(static_q_vl)
         if model.dynamics is not None:
             f_static, _ = model.encode_dynamics_batch(s, w, texts, generator=torch.Generator().manual_seed(start))
             out.setdefault("System 3 F_p, static view (all frames)", []).append(f_static.flatten(1))

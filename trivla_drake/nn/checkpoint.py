@@ -11,6 +11,7 @@ from typing import Any
 import torch
 
 from trivla_drake.nn.config import config_from_dict, config_to_dict
+from trivla_drake.nn.feature_standardizer import FeatureStandardizer
 from trivla_drake.nn.normalization import NormalizationStats
 from trivla_drake.nn.tokenizer import ByteTokenizer, PretrainedTokenizer, TextTokenizer, load_tokenizer
 from trivla_drake.nn.trivla import TriVLA
@@ -157,7 +158,9 @@ def _load_weights(model: TriVLA, state: dict[str, torch.Tensor], source: str) ->
     expected = model.state_dict()
     # Checkpoints from before System 1 standardised its features lack those statistics: they stay the
     # identity, which is what such a checkpoint was trained with.
-    missing = [k for k in expected if k not in state and k not in aliases and "standardizer" not in k]
+    optional = {f"{name}.{buffer}" for name, module in model.named_modules()
+                if isinstance(module, FeatureStandardizer) for buffer in ("mean", "std")}
+    missing = [k for k in expected if k not in state and k not in aliases and k not in optional]
     unexpected = [k for k in state if k not in expected]
     mismatched = [
         f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(expected[k].shape)}"

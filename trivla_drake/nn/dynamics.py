@@ -71,6 +71,14 @@ class DynamicsPerceptionModule(nn.Module):
                 f"dynamics.video_size ({config.video_size}) must be a multiple of the VAE's downsampling "
                 f"{self.latent_downsample}"
             )
+        # The "fixed" noise latents of the one-pass features, drawn once (see DynamicsConfig.feature_noise).
+        side = config.video_size // self.latent_downsample
+        fixed = torch.Generator().manual_seed(config.feature_noise_seed)
+        self.register_buffer(
+            "fixed_feature_noise",
+            torch.randn((1, config.num_frames, vae.config.latent_channels, side, side), generator=fixed),
+            persistent=False,
+        )
 
     @classmethod
     def from_config(
@@ -224,8 +232,7 @@ class DynamicsPerceptionModule(nn.Module):
         """Unit Gaussian noise latents (B, T, C, h, w) of the one-pass features (see `feature_noise`)."""
         if self.config.feature_noise == "random":
             return torch.randn(shape, generator=generator, dtype=torch.float32)
-        fixed = torch.Generator().manual_seed(self.config.feature_noise_seed)
-        return torch.randn((1, *shape[1:]), generator=fixed, dtype=torch.float32).expand(shape)
+        return self.fixed_feature_noise.float().cpu().expand(shape)
 
     @torch.no_grad()
     def predict_clip(

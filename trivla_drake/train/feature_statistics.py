@@ -44,6 +44,7 @@ def fit_feature_standardizers(model: TriVLA, shards: dict[int, Path], *, progres
     with torch.no_grad():
         if vl_acc is not None:
             policy.vl_standardizer.fit(*vl_acc.mean_std())
-        for standardizer, acc in zip(policy.dynamics_standardizers if view_accs else [], view_accs):
-            standardizer.fit(*acc.mean_std())
+        if view_accs:
+            for standardizer, acc in zip(policy.dynamics_standardizers, view_accs):
+                standardizer.fit(*acc.mean_std())
     return {"feature_statistics_frames": frames}
