@@ -74,7 +74,7 @@ def test_action_head_overfits_a_fixed_chunk():
     eid = torch.tensor([1])
     opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
     for _ in range(200):
-        q_s = policy.encode_state(torch.zeros(1, config.state_dim), eid)
+        q_s = policy.encode_state(torch.zeros(1, policy.state_input_dim), eid)
         memory, mask = policy.memory(q_vl, None, None, 1)
         loss, _ = policy.loss(actions.expand(16, -1, -1), q_s.expand(16, -1), memory.expand(16, -1, -1),
                               mask.expand(16, -1), eid.expand(16), generator=gen)
@@ -82,7 +82,7 @@ def test_action_head_overfits_a_fixed_chunk():
         loss.backward()
         opt.step()
     with torch.no_grad():
-        q_s = policy.encode_state(torch.zeros(1, config.state_dim), eid)
+        q_s = policy.encode_state(torch.zeros(1, policy.state_input_dim), eid)
         memory, mask = policy.memory(q_vl, None, None, 1)
         sample = policy.sample(q_s.expand(8, -1), memory.expand(8, -1, -1), mask.expand(8, -1), eid.expand(8),
                                generator=gen, num_steps=10)

@@ -181,3 +181,19 @@ def test_every_stage_writes_its_loss_curve(runs, tmp_path):
     with open(log, "a") as f:
         f.write('{"step": 99, "loss"')  # torn line of a killed run
     assert read_log(log) == rows
+
+
+def test_policy_stage_sets_the_tcp_features_of_an_init_checkpoint(runs, tmp_path):
+    from trivla_drake.train.trainer import apply_ablations
+
+    vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
+    assert vlm.config.policy.tcp_features  # the default of every preset and of `train`
+    plain = apply_ablations(vlm, True, True, "test", tcp_features=False)
+    assert not plain.config.policy.tcp_features and plain.tcp_features is None
+    assert _same(_weights(plain, "vision_language."), _weights(vlm, "vision_language."))
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "plain"), steps=2,
+                                init=runs["vlm"]["final_checkpoint"], tcp_features=False, **runs["common"]))
+    assert not load_checkpoint(summary["final_checkpoint"]).config.policy.tcp_features
+    with pytest.raises(ValueError, match="tcp_features"):
+        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "plain"), steps=4, resume=True,
+                          init=runs["vlm"]["final_checkpoint"], **runs["common"]))

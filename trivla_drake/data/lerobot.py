@@ -43,6 +43,10 @@ STATS_PATH = "meta/stats.json"
 # Episode-metadata column naming the suite task an episode demonstrates (`collect` writes it; LeRobot's
 # own task is the instruction, and one task has many phrasings).
 EPISODE_TASK_KEY = "trivla/task"
+# Episode-metadata columns of demonstrations collected with action noise (`collect --action-noise`):
+# the setting, and the frames whose applied action was disturbed (missing: none was).
+ACTION_NOISE_KEY = "trivla/action_noise"
+PERTURBED_FRAMES_KEY = "trivla/perturbed_frames"
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},

@@ -12,6 +12,9 @@ Sample for frame t of an episode with T frames (keys; shapes with the defaults):
     action                  (chunk_size, 7) float32, actions t .. t+chunk_size-1
     action_is_pad           (chunk_size,) bool, True past the end, where the action is a hold
                             (zero motion, the last gripper command)
+    action_is_stale         (chunk_size,) bool, True where a disturbed step (collection with action
+                            noise, episode metadata 'trivla/perturbed_frames') lies between frame t and
+                            that action: it answers a state frame t does not show, so it is no label
     episode_index, frame_index
 
 Decoded videos of the most recently used episodes are cached (`cache_episodes`).
@@ -23,7 +26,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader
 
 GRIPPER_INDEX = 6
 
@@ -81,6 +84,9 @@ class TrainingSamples:
             return self._cache[episode]
         data = self.reader.episode_frames(episode)
         data["videos"] = {key: self.reader.episode_video(episode, key) for key in self.cameras}
+        data["perturbed_before"] = perturbed_counts(
+            self.reader.episodes[episode].get(PERTURBED_FRAMES_KEY) or [], len(data[self.action_key])
+        )
         self._cache[episode] = data
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -98,6 +104,9 @@ class TrainingSamples:
         if action_pad.any():
             # Past the end the robot holds: no motion, the last gripper command.
             actions[action_pad, :GRIPPER_INDEX] = 0.0
+        # Disturbed steps in t .. t+k-1 for chunk entry k (entry 0 is the expert's answer to frame t).
+        before = data["perturbed_before"]
+        stale = before[np.minimum(chunk, length)] > before[t]
         sample = {
             "instruction": self.reader.task_of(episode),
             "task_index": int(data["task_index"][t]),
@@ -107,6 +116,7 @@ class TrainingSamples:
             "observation_is_pad": past < 0,
             self.action_key: actions,
             "action_is_pad": action_pad,
+            "action_is_stale": stale,
             "future_is_pad": future >= length,
         }
         for key in self.cameras:
@@ -115,3 +125,13 @@ class TrainingSamples:
             sample[key] = frames[np.clip(past, 0, n - 1)]
             sample[key.replace("observation.", "future.", 1)] = frames[np.clip(future, 0, n - 1)]
         return sample
+
+
+def perturbed_counts(frames, length: int) -> np.ndarray:
+    """(length + 1,) int: entry i counts the disturbed steps among frames 0 .. i-1."""
+    flags = np.zeros(length, dtype=np.int64)
+    frames = np.asarray(frames, dtype=np.int64)
+    if frames.size and (frames.min() < 0 or frames.max() >= length):
+        raise ValueError(f"perturbed frame indices must lie in [0, {length}), got {frames.min()}..{frames.max()}")
+    flags[frames] = 1
+    return np.concatenate([[0], np.cumsum(flags)])

@@ -44,6 +44,7 @@ def run_collect(args: argparse.Namespace) -> int:
             seed=args.seed,
             workers=args.workers,
             image_size=args.image_size,
+            action_noise=args.action_noise,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -99,6 +100,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument("--image-size", type=int, default=224, help="camera image size [px] (default 224)")
+    parser.add_argument(
+        "--action-noise", type=float, default=0.0,
+        help="disturb the applied actions in short bursts, this many times the default burst rate "
+             "(DART; 0 = clean demonstrations, the default; 1 = a burst about every 17 steps). The recorded "
+             "actions stay the oracle's; episodes started from now on get this setting.",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     parser.set_defaults(run=run_collect)

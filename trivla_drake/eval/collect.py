@@ -20,12 +20,15 @@ from pathlib import Path
 import numpy as np
 
 from trivla_drake.data.lerobot import (
+    ACTION_NOISE_KEY,
     EPISODE_TASK_KEY,
+    PERTURBED_FRAMES_KEY,
     LeRobotWriter,
     image_stats,
     vector_feature,
     video_feature,
 )
+from trivla_drake.eval.action_noise import PerturbationBursts
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
 
@@ -58,6 +61,9 @@ class CollectConfig:
     workers: int = 1
     # Camera image size [px] (square).
     image_size: int = 224
+    # Perturbation bursts on the applied actions, as a multiple of the default burst rate (DART, see
+    # eval/action_noise.py); 0 = clean demonstrations. Recorded per episode, so a resumed run may change it.
+    action_noise: float = 0.0
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -68,8 +74,15 @@ class CollectConfig:
             raise ValueError(f"image size must be an even number >= 16, got {self.image_size}")
         if not self.tasks:
             raise ValueError("--tasks is empty")
+        self.disturbance()  # validates --action-noise
         for name in self.tasks:
             get_task(name)
+
+    def disturbance(self) -> PerturbationBursts | None:
+        """The perturbation bursts of `action_noise` (None when 0)."""
+        if not np.isfinite(self.action_noise):
+            raise ValueError(f"--action-noise must be finite, got {self.action_noise}")
+        return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
         return 2 * self.episodes_per_task + 5
@@ -92,7 +105,10 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     from trivla_drake.tasks.oracle import OraclePolicy
 
     seed = derive_seed(config.seed, task, attempt)
-    result = run_episode(task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True)
+    result = run_episode(
+        task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True,
+        action_noise=config.disturbance(),
+    )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
     if not result.success:
         return out
@@ -112,6 +128,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
         "observation.tcp_pose": np.stack(trajectory.tcp_poses),
         "action": np.stack(trajectory.actions),
     }
+    out["perturbed_frames"] = [i for i, p in enumerate(trajectory.perturbed) if p]
     return out
 
 
@@ -183,6 +200,11 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         "trivla/attempt": attempt,
                         "trivla/seed": result["seed"],
                         "trivla/params": list(result["params"]),
+                        **(
+                            {ACTION_NOISE_KEY: config.action_noise, PERTURBED_FRAMES_KEY: result["perturbed_frames"]}
+                            if config.action_noise
+                            else {}
+                        ),
                     },
                 )
                 done[task].add(attempt)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trivla_drake.eval.action_noise import BurstState, PerturbationBursts
 from trivla_drake.eval.env import TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
@@ -52,6 +53,9 @@ class Trajectory:
     actions: list[np.ndarray] = field(default_factory=list)  # (7,) the action applied (clipped)
     tcp_poses: list[np.ndarray] = field(default_factory=list)  # (7,) xyz + quaternion wxyz, measured
     images: dict[str, list[np.ndarray]] = field(default_factory=dict)  # key -> (H, W, 3) uint8
+    # Whether the applied action was disturbed (collection with action noise; the recorded action is
+    # the policy's own either way).
+    perturbed: list[bool] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -113,7 +117,7 @@ class _Recorder:
         """Whether every step's camera images are recorded (video or a trajectory with images)."""
         return env.has_cameras and (self.frames is not None or self.trajectory is not None)
 
-    def add(self, obs: dict, action: np.ndarray | None) -> None:
+    def add(self, obs: dict, action: np.ndarray | None, perturbed: bool = False) -> None:
         if self.frames is not None and "static_rgb" in obs:
             self.frames.append(np.concatenate([obs["static_rgb"], obs["wrist_rgb"]], axis=1))
         if self.trajectory is not None and action is not None:
@@ -121,6 +125,7 @@ class _Recorder:
             t.states.append(np.asarray(obs["state"], dtype=np.float32))
             t.actions.append(np.clip(action, ACTION_LOW, ACTION_HIGH).astype(np.float32))
             t.tcp_poses.append(_pose7(obs["tcp_pose"]))
+            t.perturbed.append(bool(perturbed))
             for key in ("static_rgb", "wrist_rgb"):
                 if key in obs:
                     t.images.setdefault(key, []).append(obs[key])
@@ -147,8 +152,10 @@ def _run_subtask(
     seed: int,
     max_steps: int,
     recorder: _Recorder,
+    disturbance: BurstState | None = None,
 ) -> tuple[EpisodeResult, dict]:
-    """Drive `policy` on one task from the env's current state until success or `max_steps`."""
+    """Drive `policy` on one task from the env's current state until success or `max_steps`;
+    `disturbance` perturbs the applied actions (the recorded ones stay the policy's)."""
     task = get_task(instance.task)
     initial = env.scene()
     result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0)
@@ -168,8 +175,9 @@ def _run_subtask(
                 obs.update(env.images())  # rendered only when the policy looks
             queue = list(as_action_rows(policy.act(obs)))
         action = queue.pop(0)
-        recorder.add(obs, action)
-        obs = env.step(action, images=every_frame)
+        applied, perturbed = (action, False) if disturbance is None else disturbance.apply(action)
+        recorder.add(obs, action, perturbed)
+        obs = env.step(applied, images=every_frame)
         step += 1
         if task.success(instance.params, initial, env.scene()):
             result.success, result.steps = True, step
@@ -190,8 +198,12 @@ def run_episode(
     keep_trajectory: bool = False,
     max_steps: int | None = None,
     scenario: Scenario | None = None,
+    action_noise: PerturbationBursts | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
+
+    `action_noise` disturbs the applied actions in bursts (DART data collection; its random draws
+    come from their own stream derived from `seed`, so the scene is the same with and without).
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
     never escapes. `image_size` None renders no images unless the policy uses them or a video is
@@ -207,7 +219,12 @@ def run_episode(
     policy_seed = int(rng.integers(2**31))
     try:
         obs = env.reset(spec)
-        result, obs = _run_subtask(env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder)
+        disturbance = None
+        if action_noise is not None:
+            disturbance = action_noise.start(np.random.default_rng(derive_seed(seed, "action_noise")))
+        result, obs = _run_subtask(
+            env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance
+        )
         recorder.add(obs, None)
     except Exception as error:  # noqa: BLE001 - any failure is this episode's failure, the run goes on
         _log.warning("episode %s seed %d failed: %s", task_name, seed, error)

@@ -171,6 +171,9 @@ class PolicyConfig:
     time_beta_alpha: float = 1.5  # training time t = (s - u) / s, u ~ Beta(alpha, beta)
     time_beta_beta: float = 1.0
     time_s: float = 0.999
+    # Also feed the state MLP the Panda's tool-centre-point pose computed from the state's joint angles
+    # (nn/panda_tcp.py). On in every preset; off in checkpoints saved before it existed.
+    tcp_features: bool = False
 
 
 @dataclass
@@ -239,6 +242,11 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(f"policy.time_s must be in (0, 1]; got {pol.time_s}")
     if len(config.state_names) != pol.state_dim:
         raise ValueError(f"state_names has {len(config.state_names)} names; policy.state_dim is {pol.state_dim}")
+    if pol.tcp_features and tuple(config.state_names[:7]) != tuple(PANDA_STATE_NAMES[:7]):
+        raise ValueError(
+            "policy.tcp_features needs the Panda's 7 joint positions first in state_names, got "
+            f"{list(config.state_names[:7])}"
+        )
     if len(config.action_names) != pol.action_dim:
         raise ValueError(
             f"action_names has {len(config.action_names)} names; policy.action_dim is {pol.action_dim}"
@@ -257,7 +265,7 @@ _THREE_LEVEL_UNET_BLOCKS = dict(
 
 
 def _paper_config() -> TriVLAConfig:
-    return TriVLAConfig(preset="paper")
+    return TriVLAConfig(preset="paper", policy=PolicyConfig(tcp_features=True))
 
 
 def _cpu_config() -> TriVLAConfig:
@@ -309,6 +317,7 @@ def _cpu_config() -> TriVLAConfig:
             feature_size=8,
         ),
         policy=PolicyConfig(
+            tcp_features=True,  # the presets' System 1 reads the tcp pose too (nn/panda_tcp.py)
             # 4 DiT layers and 2 embodiment slots keep the whole model under 25 MB in float16 (the
             # shipped default checkpoint, models/trivla_cpu) and System 1 training fast on 2 cores.
             num_embodiments=2,
@@ -372,6 +381,7 @@ def _tiny_config() -> TriVLAConfig:
             feature_size=4,
         ),
         policy=PolicyConfig(
+            tcp_features=True,  # the presets' System 1 reads the tcp pose too (nn/panda_tcp.py)
             num_embodiments=2,
             hidden_size=32,
             num_layers=2,

@@ -12,6 +12,7 @@ from trivla_drake.nn import flow_matching
 from trivla_drake.nn.config import PolicyConfig
 from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
+from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_FEATURE_DIM
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
 from trivla_drake.nn.video_former import VideoFormer
 
@@ -49,7 +50,8 @@ class FlowMatchingPolicy(nn.Module):
         super().__init__()
         self.config = config
         dim, num_emb = config.hidden_size, config.num_embodiments
-        self.state_encoder = EmbodimentMLP(num_emb, config.state_dim, dim, dim)
+        self.state_input_dim = config.state_dim + (TCP_FEATURE_DIM if config.tcp_features else 0)
+        self.state_encoder = EmbodimentMLP(num_emb, self.state_input_dim, dim, dim)
         self.action_encoder = ActionEncoder(num_emb, config.action_dim, dim)
         self.action_pos = nn.Parameter(torch.randn(config.action_horizon, dim) * 0.02)
         self.time_embed = TimeEmbedding(dim)
@@ -85,7 +87,8 @@ class FlowMatchingPolicy(nn.Module):
     # ------------------------------------------------------------------ conditions
 
     def encode_state(self, state: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
-        """Normalised state (B, state_dim) -> Q_s (B, hidden)."""
+        """Normalised state (B, state_dim), followed by the tcp features (B, 9) when `tcp_features`
+        is on -> Q_s (B, hidden)."""
         return self.state_encoder(state, embodiment_id)
 
     def aggregate_dynamics(self, static: torch.Tensor, wrist: torch.Tensor) -> torch.Tensor:

@@ -20,6 +20,7 @@ from trivla_drake.nn.chat_prompt import tokenize_instruction
 from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
+from trivla_drake.nn.panda_tcp import PandaTcpFeatures
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy
@@ -95,6 +96,7 @@ class TriVLA(nn.Module):
         stats = normalization or NormalizationStats.identity(pol.state_dim, pol.action_dim)
         stats.check_dims(pol.state_dim, pol.action_dim)
         self.normalizer = Normalizer(stats)
+        self.tcp_features = PandaTcpFeatures() if pol.tcp_features else None
         self.image_size = (
             self.vision_language.image_size if self.vision_language else config.vision_language.vision.image_size
         )
@@ -202,7 +204,14 @@ class TriVLA(nn.Module):
         check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
         if not torch.isfinite(state).all():
             raise ValueError("state has NaN or infinite entries")
-        return self.policy.encode_state(self.normalizer.normalize_state(state), embodiment_id)
+        return self.policy.encode_state(self._state_input(state), embodiment_id)
+
+    def _state_input(self, state: torch.Tensor) -> torch.Tensor:
+        """System 1's state input: the normalised state, then the tcp features if configured."""
+        normalised = self.normalizer.normalize_state(state)
+        if self.tcp_features is None:
+            return normalised
+        return torch.cat([normalised, self.tcp_features(state).to(normalised.dtype)], dim=-1)
 
     def encode_dynamics_batch(
         self,
@@ -445,7 +454,7 @@ class TriVLA(nn.Module):
                     f_static, f_wrist = self.encode_dynamics_batch(
                         batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
                     )
-        q_s = self.policy.encode_state(self.normalizer.normalize_state(state), eid)
+        q_s = self.policy.encode_state(self._state_input(state), eid)
         memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, b)
         loss, t = self.policy.loss(
             self.normalizer.normalize_action(actions),

@@ -47,6 +47,7 @@ def config_from_args(args: argparse.Namespace):
         workers=args.workers,
         fraction=args.fraction,
         use_system2=not args.no_system2,
+        tcp_features=not args.no_tcp_features,
         use_system3=not args.no_system3,
         cache_dir=args.cache_dir,
         feature_stride=args.feature_stride,
@@ -109,6 +110,8 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--fraction", type=float, default=1.0,
                         help="fraction of each task's episodes to train on (0.1: the 10%%-data experiment)")
     parser.add_argument("--no-system2", action="store_true", help="ablation: a model without System 2")
+    parser.add_argument("--no-tcp-features", action="store_true",
+                        help="System 1 reads the joint state only, not also the tool-centre-point pose computed from it")
     parser.add_argument("--no-system3", action="store_true", help="ablation: a model without System 3")
     parser.add_argument("--cache-dir", default=None,
                         help="folder for decoded clips, the VQA set and System 2/3 features "

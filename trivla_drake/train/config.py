@@ -87,6 +87,9 @@ class TrainConfig:
     use_system2: bool = True
     # Keep System 3 (dynamics features) in the model; False is the Table 4 ablation "1+2".
     use_system3: bool = True
+    # System 1's state MLP also reads the tool-centre-point pose computed from the joint angles
+    # (policy.tcp_features); a run starting from a checkpoint without it adds it (System 1 is retrained).
+    tcp_features: bool = True
     # Folder for data made once and reused: decoded clips, the VQA set, cached System 2/3 features.
     # Entries are named by hashes of everything they depend on, so runs can share it. None: default_cache_dir().
     cache_dir: str | None = None

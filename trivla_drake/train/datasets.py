@@ -263,7 +263,8 @@ def clip_stride(fps: float, num_frames: int, clip_seconds: float) -> int:
 
 class PolicyFeatureDataset:
     """One sample per cached frame (every `feature_stride`-th frame of each episode): the current
-    state, the action chunk from that frame (padded past the end with holds, `action_is_pad`), and
+    state, the action chunk from that frame (padded past the end with holds; `action_is_pad` marks
+    those and the entries after a disturbed step of a DART demonstration, neither counts), and
     the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on."""
 
     def __init__(
@@ -303,7 +304,8 @@ class PolicyFeatureDataset:
         item: dict[str, Any] = {
             "state": torch.from_numpy(np.asarray(sample[STATE_KEY][-1], dtype=np.float32)),
             "action": torch.from_numpy(np.asarray(sample[ACTION_KEY], dtype=np.float32)),
-            "action_is_pad": torch.from_numpy(np.asarray(sample["action_is_pad"], dtype=bool)),
+            # Entries that are no label, left out of the loss: past the end, or after a disturbed step.
+            "action_is_pad": torch.from_numpy(np.asarray(sample["action_is_pad"] | sample["action_is_stale"], dtype=bool)),
         }
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])

@@ -51,9 +51,12 @@ def _transfer_weights(source: nn.Module, target: nn.Module) -> int:
     return len(matched)
 
 
-def apply_ablations(model: TriVLA, use_system2: bool, use_system3: bool, where: str) -> TriVLA:
-    """`model` with Systems 2 / 3 dropped as asked (a rebuilt model that keeps every weight that still
-    fits). A system missing from `model` cannot be switched back on: ValueError."""
+def apply_ablations(
+    model: TriVLA, use_system2: bool, use_system3: bool, where: str, tcp_features: bool | None = None
+) -> TriVLA:
+    """`model` with Systems 2 / 3 dropped as asked and System 1's tcp features set to `tcp_features`
+    (None: as they are), as a rebuilt model that keeps every weight that still fits. A system missing
+    from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
         if wanted and not have:
@@ -61,9 +64,13 @@ def apply_ablations(model: TriVLA, use_system2: bool, use_system3: bool, where: 
                 f"{where} has no {name} (it was trained without it); it cannot be switched back on: "
                 f"pass --no-system{name[-1]} or start from a checkpoint that has it"
             )
-    if (cfg.use_system2, cfg.use_system3) == (use_system2, use_system3):
+    tcp = cfg.policy.tcp_features if tcp_features is None else tcp_features
+    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features) == (use_system2, use_system3, tcp):
         return model
-    new_config = dataclasses.replace(cfg, use_system2=use_system2, use_system3=use_system3)
+    new_config = dataclasses.replace(
+        cfg, use_system2=use_system2, use_system3=use_system3,
+        policy=dataclasses.replace(cfg.policy, tcp_features=tcp),
+    )
     tokenizers = {}
     if use_system2:
         tokenizers["vision_language"] = model.vision_language.tokenizer
@@ -104,16 +111,19 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     elif config.init:
         model = load_checkpoint(config.init)
         where = f"--init checkpoint {config.init}"
-        model = apply_ablations(model, config.use_system2, config.use_system3, where)
+        model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features)
     else:
         cfg = make_config(config.preset, init_seed=config.seed,
                           use_system2=config.use_system2, use_system3=config.use_system3)
-        return TriVLA(cfg)
+        return TriVLA(dataclasses.replace(cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features)))
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
         raise ValueError(f"{where} has use_system2/3 = {model.config.use_system2}/{model.config.use_system3}, "
                          f"the run asks {config.use_system2}/{config.use_system3}")
+    if model.config.policy.tcp_features != config.tcp_features:
+        raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
+                         f"{config.tcp_features} (--no-tcp-features)")
     return model
 
 
