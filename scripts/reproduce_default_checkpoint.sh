@@ -17,7 +17,8 @@ trivla-drake train --stage vlm --out "$RUNS/vlm" --init "$RUNS/video/final" --st
 # 4. System 1 by flow matching (eq. 5) on cached System 2/3 features (standardised with statistics
 #    of the training episodes), and the ablation / data arms (same steps and batch; Systems 2 and 3
 #    are untouched by the policy stage).
-POLICY=(train --stage policy --data "$DATA" --steps 3000 --feature-stride 3)
+#    The shipped checkpoint predates System 1's tcp features (now on by default): --no-tcp-features.
+POLICY=(train --stage policy --data "$DATA" --steps 3000 --feature-stride 3 --no-tcp-features)
 trivla-drake "${POLICY[@]}" --out "$RUNS/policy" --init "$RUNS/vlm/final" --threads 2
 trivla-drake "${POLICY[@]}" --out "$RUNS/policy_s13" --init "$RUNS/video/final" --no-system2 --threads 1
 trivla-drake "${POLICY[@]}" --out "$RUNS/policy_s1" --init "$RUNS/video/final" --no-system2 --no-system3 --threads 1
@@ -37,5 +38,22 @@ trivla-drake probe --data "$DATA" --checkpoint models/trivla_cpu --threads 2 --f
 #    for S in 1000 1001 1002.
 if [[ "${LONGER:-0}" == 1 ]]; then
   trivla-drake train --stage policy --data "$DATA" --out "$RUNS/policy_longer" --init "$RUNS/policy/final" \
-      --lr 3e-4 --steps 3000 --feature-stride 3 --seed 1 --threads 2
+      --lr 3e-4 --steps 3000 --feature-stride 3 --seed 1 --no-tcp-features --threads 2
+fi
+# Optional (DART=1): the experiment with recovery demonstrations and tcp features, not shipped
+# (results/dart_tcp_experiment/): 30 more episodes per task with perturbation bursts, then the
+# three arms on all 720 episodes with the tcp features, at 3e-4.
+if [[ "${DART:-0}" == 1 ]]; then
+  DART_DATA=${DART_DATA:-$DATA-dart}
+  [[ -d "$DART_DATA" ]] || cp -r "$DATA" "$DART_DATA"
+  trivla-drake collect --out "$DART_DATA" --episodes-per-task 60 --action-noise 1
+  DART_POLICY=(train --stage policy --data "$DART_DATA" --steps 3000 --lr 3e-4 --feature-stride 3)
+  trivla-drake "${DART_POLICY[@]}" --out "$RUNS/dart_policy" --init "$RUNS/vlm/final" --threads 1
+  trivla-drake "${DART_POLICY[@]}" --out "$RUNS/dart_s13" --init "$RUNS/video/final" --no-system2 --threads 1
+  trivla-drake "${DART_POLICY[@]}" --out "$RUNS/dart_s1" --init "$RUNS/video/final" --no-system2 --no-system3 --threads 1
+  for run in dart_policy dart_s13 dart_s1; do
+    for seed in 1000 1001 1002; do
+      trivla-drake evaluate --policy "$RUNS/$run/final" --episodes 2 --chains 3 --seed "$seed" --workers 2
+    done
+  done
 fi
