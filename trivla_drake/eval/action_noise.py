@@ -25,7 +25,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class PerturbationBursts:
-    """Settings of the bursts (see the module docstring); `scale` multiplies the burst rate."""
+    """Settings of the bursts (see the module docstring); `scaled(x)` gives the defaults x times as often."""
 
     # Probability per control step that a burst starts (outside a burst).
     rate: float = 0.06

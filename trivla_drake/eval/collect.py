@@ -5,6 +5,9 @@ until it has `episodes_per_task` successes (at most `2 N + 5` attempts); failure
 `meta/trivla_collection.json` with their reasons and never written as episodes. Episodes are
 committed one at a time in a fixed order, so a killed run leaves every finished episode readable,
 and running the same command again resumes: attempts already committed or failed are skipped.
+
+With `action_noise` > 0 the applied actions are disturbed in bursts (DART, eval/action_noise.py);
+the recorded actions stay the oracle's and each episode's metadata lists its disturbed frames.
 """
 
 from __future__ import annotations
