@@ -157,6 +157,13 @@ def test_compute_loss_accepts_precomputed_features_and_padding(model):
     pad[:, 5:] = True
     loss_c, _ = model.compute_loss({**pre, "action_is_pad": pad}, generator=torch.Generator().manual_seed(0))
     assert torch.isfinite(loss_c) and loss_c.item() != loss_a.item()
+    # Entries after a disturbed step (DART) are left out like padding, alone or together with it.
+    tail, middle = torch.zeros(2, 10, dtype=torch.bool), torch.zeros(2, 10, dtype=torch.bool)
+    tail[:, 7:], middle[:, 5:7] = True, True  # together the same entries as `pad`
+    loss_d, _ = model.compute_loss({**pre, "action_is_stale": pad}, generator=torch.Generator().manual_seed(0))
+    loss_e, _ = model.compute_loss({**pre, "action_is_pad": tail, "action_is_stale": middle},
+                                   generator=torch.Generator().manual_seed(0))
+    assert loss_d.item() == loss_c.item() == loss_e.item()
     with pytest.raises(ValueError, match="action"):
         model.compute_loss({**pre, "action": pre["action"][:, :5]})
     with pytest.raises(ValueError, match="state"):

@@ -48,6 +48,9 @@ def test_state_token_sees_the_tcp_only_when_configured():
     assert with_tcp.policy.state_input_dim == without.policy.state_input_dim + 9
     state = torch.zeros(2, 18)
     state[1, 0] = 0.5  # turning joint 1 moves the tcp
+    inputs = with_tcp._state_input(state)
+    torch.testing.assert_close(inputs[:, :18], without._state_input(state))
+    torch.testing.assert_close(inputs[:, 18:], PandaTcpFeatures()(state))
+    assert not torch.allclose(inputs[0, 18:], inputs[1, 18:])
     q_s = with_tcp.encode_state_batch(state, torch.zeros(2, dtype=torch.long))
     assert q_s.shape == (2, with_tcp.config.policy.hidden_size)
-    assert without.encode_state_batch(state, torch.zeros(2, dtype=torch.long)).shape == q_s.shape

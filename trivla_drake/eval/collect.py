@@ -83,8 +83,6 @@ class CollectConfig:
 
     def disturbance(self) -> PerturbationBursts | None:
         """The perturbation bursts of `action_noise` (None when 0)."""
-        if not np.isfinite(self.action_noise):
-            raise ValueError(f"--action-noise must be finite, got {self.action_noise}")
         return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:

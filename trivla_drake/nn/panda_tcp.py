@@ -1,9 +1,8 @@
 """The Panda's tool-centre-point pose from its joint angles, in torch (System 1's state features).
 
 The policy's actions move the tool-centre point in the world, but its state input is joint angles:
-without help it has to learn the arm's forward kinematics from a few hundred demonstrations, and
-learns it to a couple of centimetres, which is the difference between grasping a 4.5 cm block and
-knocking it over. `PandaTcpFeatures` computes the pose exactly (the Franka Panda URDF's chain, the
+without help it has to learn the arm's forward kinematics from a few hundred demonstrations on top
+of everything else. `PandaTcpFeatures` computes the pose exactly (the Franka Panda URDF's chain, the
 same one `trivla_drake.robot.PandaKinematics` reads with pinocchio; a test checks they agree), as
 CALVIN's robot observation, which the paper's policy reads, carries the end-effector pose too.
 

@@ -408,7 +408,9 @@ class TriVLA(nn.Module):
         """System 1's flow-matching loss (eq. 5 with velocity regression) on a batch of B samples.
 
         Keys: "action" float (B, H, A) and "state" float (B, state_dim), both unnormalised;
-        "embodiment_id" long (B,) (default zeros); "action_is_pad" bool (B, H) (optional, True = padding);
+        "embodiment_id" long (B,) (default zeros); "action_is_pad" and "action_is_stale" bool (B, H)
+        (optional: padding past an episode's end, and entries after a disturbed step of a DART
+        demonstration; either leaves the entry out of the loss);
         and either raw inputs "static_rgb"/"wrist_rgb" uint8 (B, H, W, 3) + "instruction" list[str], or
         precomputed "q_vl" (B, S, D_llm) + optional "q_vl_mask" (B, S) and "dynamics_static"/
         "dynamics_wrist" (B, T+1, C, H_p, W_p). Systems 2 and 3 run without gradient unless train_systems_2_3.
@@ -432,8 +434,9 @@ class TriVLA(nn.Module):
             else torch.zeros(b, dtype=torch.long, device=self.device)
         )
         check_embodiment_ids(eid, pol.num_embodiments)
-        pad = batch.get("action_is_pad")
-        action_mask = None if pad is None else ~torch.as_tensor(pad, dtype=torch.bool, device=self.device)
+        excluded = [torch.as_tensor(batch[k], dtype=torch.bool, device=self.device)
+                    for k in ("action_is_pad", "action_is_stale") if batch.get(k) is not None]
+        action_mask = None if not excluded else ~torch.stack(excluded).any(0)
 
         with torch.set_grad_enabled(train_systems_2_3 and torch.is_grad_enabled()):
             q_vl = q_vl_mask = f_static = f_wrist = None

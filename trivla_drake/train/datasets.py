@@ -263,8 +263,8 @@ def clip_stride(fps: float, num_frames: int, clip_seconds: float) -> int:
 
 class PolicyFeatureDataset:
     """One sample per cached frame (every `feature_stride`-th frame of each episode): the current
-    state, the action chunk from that frame (padded past the end with holds; `action_is_pad` marks
-    those and the entries after a disturbed step of a DART demonstration, neither counts), and
+    state, the action chunk from that frame (padded past the end with holds, `action_is_pad`; entries
+    after a disturbed step of a DART demonstration, `action_is_stale`; neither counts), and
     the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on."""
 
     def __init__(
@@ -304,8 +304,8 @@ class PolicyFeatureDataset:
         item: dict[str, Any] = {
             "state": torch.from_numpy(np.asarray(sample[STATE_KEY][-1], dtype=np.float32)),
             "action": torch.from_numpy(np.asarray(sample[ACTION_KEY], dtype=np.float32)),
-            # Entries that are no label, left out of the loss: past the end, or after a disturbed step.
-            "action_is_pad": torch.from_numpy(np.asarray(sample["action_is_pad"] | sample["action_is_stale"], dtype=bool)),
+            "action_is_pad": torch.from_numpy(np.asarray(sample["action_is_pad"], dtype=bool)),
+            "action_is_stale": torch.from_numpy(np.asarray(sample["action_is_stale"], dtype=bool)),
         }
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
@@ -327,7 +327,7 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
     """Batch for `TriVLA.compute_loss` with precomputed features: Q_vl right-padded to the longest
     sequence with `q_vl_mask`, features as float32."""
     batch: dict[str, Any] = {
-        key: torch.stack([it[key] for it in items]) for key in ("state", "action", "action_is_pad")
+        key: torch.stack([it[key] for it in items]) for key in ("state", "action", "action_is_pad", "action_is_stale")
     }
     if "q_vl" in items[0]:
         longest = max(it["q_vl"].shape[0] for it in items)
