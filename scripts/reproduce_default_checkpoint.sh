@@ -43,7 +43,8 @@ fi
 # Optional (DART=1): the experiment with recovery demonstrations and tcp features, not shipped
 # (results/dart_tcp_experiment/): 30 more episodes per task with perturbation bursts, then the
 # three arms on all 720 episodes with the tcp features, at 3e-4 for 3000 steps, then each arm for
-# 6000 more steps (9000 in all). The full arm is evaluated as its float16 export, like the shipped one.
+# 6000 more steps (9000 in all), and the full arm 4500 more again (13500). The full arm is
+# evaluated as its float16 export, like the shipped one.
 if [[ "${DART:-0}" == 1 ]]; then
   DART_DATA=${DART_DATA:-$DATA-dart}
   [[ -d "$DART_DATA" ]] || cp -r "$DATA" "$DART_DATA"
@@ -56,10 +57,12 @@ if [[ "${DART:-0}" == 1 ]]; then
   trivla-drake "${DART_POLICY[@]}" --steps 6000 --seed 1 --out "$RUNS/dart_s13_9k" --init "$RUNS/dart_s13/final" --no-system2
   trivla-drake "${DART_POLICY[@]}" --steps 6000 --seed 1 --out "$RUNS/dart_s1_9k" --init "$RUNS/dart_s1/final" \
       --no-system2 --no-system3
-  for run in dart_policy dart_policy_9k; do
+  trivla-drake "${DART_POLICY[@]}" --steps 4500 --seed 2 --out "$RUNS/dart_policy_13500" --init "$RUNS/dart_policy_9k/final"
+  for run in dart_policy dart_policy_9k dart_policy_13500; do
     trivla-drake export "$RUNS/$run/final" --out "$RUNS/${run}_export"
   done
-  for policy in dart_policy_export dart_s13/final dart_s1/final dart_policy_9k_export dart_s13_9k/final dart_s1_9k/final; do
+  for policy in dart_policy_export dart_s13/final dart_s1/final dart_policy_9k_export dart_s13_9k/final dart_s1_9k/final \
+      dart_policy_13500_export; do
     for seed in 1000 1001 1002; do
       trivla-drake evaluate --policy "$RUNS/$policy" --episodes 2 --chains 3 --seed "$seed" --workers 2
     done
