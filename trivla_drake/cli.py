@@ -87,14 +87,17 @@ def _cmd_demo(args) -> int:
     get_task(args.task)  # an unknown name fails here, listing the valid ones
     latency = LatencyModel.parse(args.latency)
     if args.policy == "oracle":
-        if args.meshcat or args.record or args.instruction or args.checkpoint:
-            raise ValueError("--meshcat, --record, --instruction and --checkpoint go with --policy trivla")
+        if args.meshcat or args.record or args.instruction or args.checkpoint or args.noise_scale is not None:
+            raise ValueError("--meshcat, --record, --instruction, --checkpoint and --noise-scale go with "
+                             "--policy trivla")
         report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed)
     else:
         from trivla_drake.eval.model_loading import load_model
 
         _set_torch_threads(args.threads)
         model = load_model(args.checkpoint)
+        if args.noise_scale is not None:
+            model.set_initial_noise_scale(args.noise_scale)
         meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
         if args.meshcat:
             print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
@@ -133,7 +136,7 @@ def _cmd_tables(args) -> int:
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
                           seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
-                          results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
+                          noise_scale=args.noise_scale, results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
         config.tasks = _names(args.tasks)
     if args.latency_tasks:
@@ -174,6 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     commands = parser.add_subparsers(dest="command", required=True)
+    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser, add_noise_scale_argument
     from trivla_drake.eval.evaluate import EVAL_BASE_SEED
     from trivla_drake.eval.paper_tables import TablesConfig
 
@@ -199,13 +203,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--max-seconds", type=float, default=None,
                       help="episode time limit in sim seconds (default: the task's own limit)")
     demo.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    add_noise_scale_argument(demo)
     demo.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
     demo.add_argument("--port", type=int, default=None, help="Meshcat port")
     demo.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
     demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     demo.set_defaults(run=_cmd_demo)
-
-    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser
 
     add_collect_parser(commands)
     add_evaluate_parser(commands)
@@ -233,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--workers", type=int, default=1)
     tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
     tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    add_noise_scale_argument(tables)
     tables.add_argument("--no-reuse", action="store_true",
                         help="do not store or reuse evaluations in OUT/evaluations/ (default: reuse, so a "
                              "killed or extended run redoes only what is missing)")

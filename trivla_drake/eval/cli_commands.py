@@ -77,6 +77,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             record_dir=args.record_dir,
             image_size=args.image_size,
             max_steps=args.max_steps,
+            noise_scale=args.noise_scale,
         )
         report = evaluate(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -112,6 +113,13 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
     return parser
 
 
+def add_noise_scale_argument(parser: argparse.ArgumentParser) -> None:
+    """--noise-scale: the inference setting of TriVLA's System 1 sampling (see EvalConfig.noise_scale)."""
+    parser.add_argument("--noise-scale", type=float, default=None,
+                        help="TriVLA: standard deviation of the noise System 1's flow-matching sampling starts "
+                             "from (default: the checkpoint's, 1 = the paper's; 0 = deterministic chunks)")
+
+
 def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     """Register `evaluate` on an argparse subparsers object."""
     parser = commands.add_parser("evaluate", help="closed-loop evaluation: per-task success and chain Avg. Len")
@@ -128,6 +136,7 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--record-dir", default=None, help="save one mp4 per episode / chain here")
     parser.add_argument("--image-size", type=int, default=None, help="camera size for policies that look (224)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: per task)")
+    add_noise_scale_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from trivla_drake.tasks.suite import get_task
 
-_POLICY_CACHE: dict[str, object] = {}
+_POLICY_CACHE: dict[tuple[str, float | None], object] = {}
 
 
 # Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
@@ -47,6 +47,9 @@ class EvalConfig:
     image_size: int | None = None
     # Cap on the steps of every episode (None: each task's own max_steps); for quick runs.
     max_steps: int | None = None
+    # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: the
+    # checkpoint's `policy.initial_noise_scale`, 1 unless set; 0: deterministic chunks).
+    noise_scale: float | None = None
 
     def validate(self) -> None:
         if not self.tasks and self.chains <= 0:
@@ -57,21 +60,23 @@ class EvalConfig:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
+        if self.noise_scale is not None and not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            raise ValueError(f"--noise-scale must be a finite number >= 0, got {self.noise_scale}")
 
 
-def _policy(spec: str):
+def _policy(spec: str, noise_scale: float | None):
     from trivla_drake.eval.policies import load_policy
 
-    if spec not in _POLICY_CACHE:
-        _POLICY_CACHE[spec] = load_policy(spec)
-    return _POLICY_CACHE[spec]
+    if (spec, noise_scale) not in _POLICY_CACHE:
+        _POLICY_CACHE[spec, noise_scale] = load_policy(spec, noise_scale)
+    return _POLICY_CACHE[spec, noise_scale]
 
 
 def _run_job(config: EvalConfig, job: tuple) -> dict:
     """One episode or chain; top level so that worker processes can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
 
-    policy = _policy(config.policy)
+    policy = _policy(config.policy, config.noise_scale)
     kind, name, index = job
     video = None
     if config.record_dir is not None:
@@ -180,7 +185,7 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
 def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
     """Run the episodes and chains of `config` and return the report (see `summarize`)."""
     config.validate()
-    _policy(config.policy)  # fail early (unknown policy, no checkpoint loader) before any work
+    _policy(config.policy, config.noise_scale)  # fail early (unknown policy, no checkpoint loader) before any work
     jobs = [("episode", name, i) for i in range(config.episodes) for name in config.tasks]
     episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}") if jobs else []
     chain_jobs = [("chain", "chain", j) for j in range(config.chains)]

@@ -56,6 +56,8 @@ class TablesConfig:
     max_steps: int | None = None
     # Folder of stored evaluation results to reuse and add to (None: store nothing).
     results_dir: str | None = None
+    # Every checkpoint's System 1 sampling noise scale (None: each checkpoint's own; see EvalConfig).
+    noise_scale: float | None = None
 
     def validate(self) -> None:
         from trivla_drake.tasks import get_task
@@ -72,6 +74,8 @@ class TablesConfig:
                 raise ValueError(f"checkpoints['{role}'] = {path} is not a checkpoint directory (no config.json)")
         if not self.seeds or self.episodes < 1:
             raise ValueError("seeds must be non-empty and episodes >= 1")
+        if self.noise_scale is not None and not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            raise ValueError(f"noise_scale must be a finite number >= 0, got {self.noise_scale}")
 
 
 def _mean_stderr(values: list[float]) -> tuple[float, float]:
@@ -96,6 +100,8 @@ def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> d
     """compute() once per (checkpoint contents, settings) when `results_dir` is set, else every call."""
     if config.results_dir is None:
         return compute()
+    if config.noise_scale is not None:  # absent otherwise, so results stored before it existed still match
+        settings = {**settings, "noise_scale": config.noise_scale}
     key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
     path = Path(config.results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
     if path.exists():
@@ -115,7 +121,7 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
     def one_seed(seed: int) -> dict:
         eval_config = EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
                                  chains=chains, paraphrases=paraphrases, workers=config.workers,
-                                 max_steps=config.max_steps)
+                                 max_steps=config.max_steps, noise_scale=config.noise_scale)
         settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
@@ -152,6 +158,8 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
     from trivla_drake.systems.latency import LatencyModel
 
     model = load_checkpoint(checkpoint).eval()
+    if config.noise_scale is not None:
+        model.set_initial_noise_scale(config.noise_scale)
     rows = {}
     for label, latency in (("latency off", LatencyModel("zero")), ("latency measured", LatencyModel("measured"))):
         successes, control = [], []
@@ -198,7 +206,9 @@ def format_tables(report: dict) -> str:
     if cfg:
         lines += [f"Settings: {cfg['episodes']} episodes per task and seed, seeds {', '.join(map(str, cfg['seeds']))} "
                   f"(each seed's mean is one sample of the stderr), {cfg['chains']} five-task chains per seed, "
-                  f"latency rows {cfg['latency_episodes']} episodes on each of {', '.join(cfg['latency_tasks'])}.", ""]
+                  f"latency rows {cfg['latency_episodes']} episodes on each of {', '.join(cfg['latency_tasks'])}"
+                  + (f", System 1 sampling noise scale {cfg['noise_scale']:g}" if cfg.get("noise_scale") is not None
+                     else "") + ".", ""]
     lines += ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
               "| --- | --- | --- |"]
     for name, row in main["tasks"].items():

@@ -61,15 +61,22 @@ class RandomPolicy:
         return np.tile(action, (self._hold_steps, 1))
 
 
-def load_checkpoint_policy(path: str | Path) -> Policy:
-    """A learned TriVLA policy from a checkpoint directory (see trivla_harness_policy.py)."""
+def load_checkpoint_policy(path: str | Path, noise_scale: float | None = None) -> Policy:
+    """A learned TriVLA policy from a checkpoint directory (see trivla_harness_policy.py); `noise_scale`
+    overrides the checkpoint's `policy.initial_noise_scale`."""
     from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
 
-    return TriVLAHarnessPolicy.from_checkpoint(path)
+    policy = TriVLAHarnessPolicy.from_checkpoint(path)
+    if noise_scale is not None:
+        policy.model.set_initial_noise_scale(noise_scale)
+    return policy
 
 
-def load_policy(spec: str) -> Policy:
-    """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory."""
+def load_policy(spec: str, noise_scale: float | None = None) -> Policy:
+    """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory.
+    `noise_scale` (TriVLA only) overrides the checkpoint's initial noise scale of System 1's sampling."""
+    if noise_scale is not None and spec in ("oracle", "random"):
+        raise ValueError(f"--noise-scale applies to TriVLA checkpoints only, not to --policy {spec}")
     if spec == "trivla":
         from trivla_drake.eval.model_loading import default_checkpoint_dir
 
@@ -77,7 +84,7 @@ def load_policy(spec: str) -> Policy:
         if not (default / "config.json").exists():
             raise ValueError(f"--policy trivla needs the shipped checkpoint at {default}; it is missing "
                              "(give a checkpoint directory instead)")
-        return load_checkpoint_policy(default)
+        return load_checkpoint_policy(default, noise_scale)
     if spec == "oracle":
         from trivla_drake.tasks.oracle import OraclePolicy
 
@@ -89,7 +96,7 @@ def load_policy(spec: str) -> Policy:
         raise ValueError(
             f"--policy {spec!r} is neither one of {', '.join(POLICY_CHOICES)} nor an existing checkpoint path"
         )
-    return load_checkpoint_policy(path)
+    return load_checkpoint_policy(path, noise_scale)
 
 
 def as_action_rows(output, name: str = "policy output") -> np.ndarray:

@@ -169,10 +169,12 @@ class FlowMatchingPolicy(nn.Module):
         generator: torch.Generator | None = None,
         num_steps: int | None = None,
     ) -> torch.Tensor:
-        """Normalised action chunks (B, H, A) by Euler integration from Gaussian noise."""
+        """Normalised action chunks (B, H, A) by Euler integration from Gaussian noise of standard
+        deviation `config.initial_noise_scale`."""
         c = self.config
         shape = (q_s.shape[0], c.action_horizon, c.action_dim)
         noise = torch.randn(shape, generator=generator, dtype=torch.float32).to(q_s.device, q_s.dtype)
+        noise = noise * c.initial_noise_scale
         return flow_matching.euler_sample(
             lambda x, t: self.velocity(x, t, q_s, memory, memory_mask, embodiment_id),
             noise,

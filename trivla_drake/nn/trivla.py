@@ -10,6 +10,7 @@ Actions leave the model unnormalised; the model applies the normalisation statis
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -117,6 +118,14 @@ class TriVLA(nn.Module):
         """Replaces the normalisation statistics (e.g. with those of the training set)."""
         stats.check_dims(self.config.policy.state_dim, self.config.policy.action_dim)
         self.normalizer.set_stats(stats)
+
+    def set_initial_noise_scale(self, scale: float) -> None:
+        """Sets the standard deviation of the noise System 1's sampling starts from (see
+        `PolicyConfig.initial_noise_scale`); ValueError unless it is a finite number >= 0."""
+        scale = float(scale)
+        if not (math.isfinite(scale) and scale >= 0):
+            raise ValueError(f"noise_scale must be a finite number >= 0; got {scale}")
+        self.config.policy.initial_noise_scale = scale
 
     def parameter_counts(self) -> dict[str, int]:
         """Parameters per system: system2 (SigLIP, projector, LLM), system3 (VAE, CLIP text, UNet),
