@@ -60,7 +60,22 @@ if [[ "${STEPS:-0}" == 1 ]]; then
     done
   done
 fi
-# 9. Optional (CLEAN=1; results/clean_demos_release/): the previous release's recipe, on the 360
+# 9. Optional (NOISE=1; results/noise_scale_0/): the same tables with System 1 sampling from the noise
+#    mean (--noise-scale 0, deterministic chunks), and the full model at noise scale 0.5.
+if [[ "${NOISE:-0}" == 1 ]]; then
+  trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \
+      --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
+      --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block \
+      --noise-scale 0 --out results/noise_scale_0
+  mkdir -p results/noise_scale_0/scale_0.5
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy trivla --noise-scale 0.5 --episodes 2 --chains 3 --seed "$seed" --workers 2 \
+        --no-progress --json > "results/noise_scale_0/scale_0.5/seed$seed.json"
+    trivla-drake evaluate --policy trivla --noise-scale 0.5 --episodes 2 --paraphrases --seed "$seed" --workers 2 \
+        --no-progress --json > "results/noise_scale_0/scale_0.5/paraphrases_seed$seed.json"
+  done
+fi
+# 10. Optional (CLEAN=1; results/clean_demos_release/): the previous release's recipe, on the 360
 #    clean episodes without tcp features at learning rate 1e-4 for 3000 steps, its tables, and the
 #    same run 3000 steps more at 3e-4 (`policy_longer`, evaluated on seeds 1000-1002).
 if [[ "${CLEAN:-0}" == 1 ]]; then
