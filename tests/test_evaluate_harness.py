@@ -60,6 +60,11 @@ def test_unknown_task_and_policy_are_clear_errors(capsys):
         load_policy("no/such/checkpoint")
 
 
+def test_bad_thread_count_is_a_clear_error(capsys):
+    assert main(["evaluate", "--tasks", "lift_block", "--episodes", "1", "--threads", "0", "--no-progress"]) == 2
+    assert "--threads must be at least 1" in capsys.readouterr().err
+
+
 def test_a_directory_that_is_not_a_checkpoint_is_a_clear_error(tmp_path, capsys):
     assert main(["evaluate", "--policy", str(tmp_path), "--tasks", "lift_block", "--episodes", "1"]) == 2
     err = capsys.readouterr().err

@@ -79,6 +79,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
             max_steps=args.max_steps,
             noise_scale=args.noise_scale,
         )
+        if args.threads < 1:
+            raise ValueError(f"--threads must be at least 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)  # a serial run; each --workers process uses 1
         report = evaluate(config, progress=not args.no_progress)
     except _user_errors() as error:
         print(f"trivla-drake evaluate: error: {error}", file=sys.stderr)
@@ -133,6 +138,9 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--chains", type=int, default=0, help="chains of 5 tasks to run (default 0)")
     parser.add_argument("--paraphrases", action="store_true", help="use held-out instruction paraphrases")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch threads of a serial run (default 1, like each worker process, so that "
+                             "TriVLA's results do not depend on --workers)")
     parser.add_argument("--record-dir", default=None, help="save one mp4 per episode / chain here")
     parser.add_argument("--image-size", type=int, default=None, help="camera size for policies that look (224)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: per task)")
