@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ exactly as they were made (2 CPU cores, about
-# 7 hours; every step resumes or reuses its caches if rerun). Run from the repository root in the
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 7 hours;
+# every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
+# the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
 set -euo pipefail
 DATA=${DATA:-data/sim}
@@ -23,7 +24,9 @@ trivla-drake collect --out "$DART_DATA" --episodes-per-task 60 --action-noise 1
 # 5. System 1 by flow matching (eq. 5) with the tcp features, on cached System 2/3 features
 #    (standardised with statistics of the training episodes): 3000 steps of 32 at learning rate 3e-4
 #    on every 3rd frame, then 6000 more from those weights (seed 1; 9000 in all). The same for the
-#    ablation arms and the 10%-data arm (Systems 2 and 3 are untouched by the policy stage).
+#    ablation arms and the 10%-data arm (Systems 2 and 3 are untouched by the policy stage). --seed
+#    also picks the 10% subset, so that arm's two parts trained on different draws (72 episodes
+#    each, 135 distinct): kept as it was run.
 POLICY=(train --stage policy --data "$DART_DATA" --lr 3e-4 --feature-stride 3 --threads 1)
 arm() {  # arm NAME INIT [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME.
   local name=$1 init=$2
@@ -54,9 +57,11 @@ if [[ "${STEPS:-0}" == 1 ]]; then
   for run in policy_3k policy_13500; do
     trivla-drake export "$RUNS/$run/final" --out "$RUNS/${run}_export"
   done
+  mkdir -p "$RUNS/evaluations"
   for policy in policy_3k_export policy_s13_3k/final policy_s1_3k/final policy_13500_export; do
     for seed in 1000 1001 1002; do
-      trivla-drake evaluate --policy "$RUNS/$policy" --episodes 2 --chains 3 --seed "$seed" --workers 2
+      trivla-drake evaluate --policy "$RUNS/$policy" --episodes 2 --chains 3 --seed "$seed" --workers 2 \
+          --no-progress --json > "$RUNS/evaluations/${policy%%/*}_seed$seed.json"
     done
   done
 fi
@@ -92,7 +97,10 @@ if [[ "${CLEAN:-0}" == 1 ]]; then
       --out results/clean_demos_release
   trivla-drake train --stage policy --data "$DATA" --out "$RUNS/clean_longer" --init "$RUNS/clean/final" \
       --lr 3e-4 --steps 3000 --feature-stride 3 --seed 1 --no-tcp-features --threads 2
+  trivla-drake export "$RUNS/clean_longer/final" --out "$RUNS/clean_longer_export"
+  mkdir -p "$RUNS/evaluations"
   for seed in 1000 1001 1002; do
-    trivla-drake evaluate --policy "$RUNS/clean_longer/final" --episodes 2 --chains 3 --seed "$seed" --workers 2
+    trivla-drake evaluate --policy "$RUNS/clean_longer_export" --episodes 2 --chains 3 --seed "$seed" --workers 2 \
+        --no-progress --json > "$RUNS/evaluations/clean_longer_seed$seed.json"
   done
 fi

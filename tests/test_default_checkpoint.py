@@ -3,6 +3,7 @@ still solves a task it was trained on, in closed loop on a scene it never saw.""
 
 import json
 import logging
+from pathlib import Path
 
 import pytest
 
@@ -48,3 +49,27 @@ def test_shipped_checkpoint_solves_a_training_task_on_an_unseen_scene():
     finally:
         torch.set_num_threads(threads)
     assert report["tasks"][SOLVED_TASK]["success_rate"] == 1.0
+
+
+def test_the_stored_tables_in_results_are_those_of_the_shipped_checkpoint(monkeypatch):
+    """results/report.md must come from models/trivla_cpu: every evaluation it needs is found in
+    results/evaluations/ under this checkpoint's contents (nothing is run), and gives its figures."""
+    from trivla_drake.eval import paper_tables
+
+    results = Path(__file__).resolve().parents[1] / "results"
+    report = json.loads((results / "report.json").read_text())
+    settings = report["config"]
+    config = paper_tables.TablesConfig(
+        checkpoints={"full": str(default_checkpoint_dir())}, tasks=settings["tasks"], episodes=settings["episodes"],
+        seeds=tuple(settings["seeds"]), chains=settings["chains"], max_steps=settings["max_steps"],
+        results_dir=str(results / "evaluations"))
+
+    def not_stored(*args, **kwargs):
+        raise AssertionError("an evaluation of results/report.json is not stored for models/trivla_cpu")
+
+    monkeypatch.setattr(paper_tables, "evaluate", not_stored)
+    main = paper_tables._over_seeds(config, config.checkpoints["full"], chains=config.chains)
+    paraphrases = paper_tables._over_seeds(config, config.checkpoints["full"], paraphrases=True)
+    assert main["average_success"] == pytest.approx(report["main"]["average_success"])
+    assert main["chain_avg_len"] == pytest.approx(report["main"]["chain_avg_len"])
+    assert paraphrases["average_success"] == pytest.approx(report["paraphrases"]["average_success"])

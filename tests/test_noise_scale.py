@@ -1,4 +1,4 @@
-"""System 1's sampling noise scale (`policy.initial_noise_scale`, `--noise-scale`): 0 gives one
+"""System 1's sampling noise scale (`TriVLA.set_initial_noise_scale`, `--noise-scale`): 0 gives one
 deterministic chunk per observation, 1 (the default) the paper's sampling; bad values are named."""
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from trivla_drake.eval.paper_tables import TablesConfig, _stored
 from trivla_drake.eval.policies import load_policy
 from trivla_drake.nn import TriVLA, load_checkpoint, make_config, save_checkpoint
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import validate_config
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +28,7 @@ def _chunk(model, scale, seed):
 
 
 def test_scale_zero_is_deterministic_and_scale_one_is_the_default_sampling(model):
-    assert model.config.policy.initial_noise_scale == 1.0
+    assert model.initial_noise_scale == 1.0
     default = model.predict_action_chunk(example_observation(model.image_size, model.config.policy.state_dim), seed=1)
     np.testing.assert_array_equal(_chunk(model, 1.0, 1), default)
     assert not np.allclose(_chunk(model, 1.0, 1), _chunk(model, 1.0, 2))  # fresh noise per seed
@@ -42,26 +41,19 @@ def test_scale_zero_is_deterministic_and_scale_one_is_the_default_sampling(model
 def test_bad_scales_are_named(model, bad):
     with pytest.raises(ValueError, match="noise_scale"):
         model.set_initial_noise_scale(bad)
-    config = make_config("tiny")
-    config.policy.initial_noise_scale = bad
-    with pytest.raises(ValueError, match="policy.initial_noise_scale"):
-        validate_config(config)
+    assert model.initial_noise_scale == 1.0
     with pytest.raises(ValueError, match="--noise-scale"):
         EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1, noise_scale=bad).validate()
 
 
-def test_checkpoints_keep_the_scale_and_older_ones_load_with_the_default(model, tmp_path):
+def test_the_scale_is_an_inference_setting_not_saved_with_the_weights(model, tmp_path):
     model.set_initial_noise_scale(0.0)
-    save_checkpoint(model, str(tmp_path / "zero"))
+    save_checkpoint(model, str(tmp_path / "ckpt"))
     model.set_initial_noise_scale(1.0)
-    assert load_checkpoint(str(tmp_path / "zero")).config.policy.initial_noise_scale == 0.0
-    config_file = tmp_path / "zero" / "config.json"
-    meta = json.loads(config_file.read_text())
-    del meta["config"]["policy"]["initial_noise_scale"]  # as written before the field existed
-    config_file.write_text(json.dumps(meta))
-    assert load_checkpoint(str(tmp_path / "zero")).config.policy.initial_noise_scale == 1.0
-    policy = load_policy(str(tmp_path / "zero"), noise_scale=0.25)
-    assert policy.model.config.policy.initial_noise_scale == 0.25
+    assert "noise_scale" not in (tmp_path / "ckpt" / "config.json").read_text()  # checkpoints unchanged
+    assert load_checkpoint(str(tmp_path / "ckpt")).initial_noise_scale == 1.0
+    policy = load_policy(str(tmp_path / "ckpt"), noise_scale=0.25)  # what each evaluate worker runs
+    assert policy.model.initial_noise_scale == 0.25
 
 
 def test_noise_scale_with_a_policy_that_does_not_sample_is_an_error(capsys):
@@ -76,7 +68,7 @@ def test_noise_scale_with_a_policy_that_does_not_sample_is_an_error(capsys):
     assert "--noise-scale" in capsys.readouterr().err
 
 
-def test_tables_store_results_per_noise_scale_and_keep_older_keys(tmp_path):
+def test_tables_store_results_per_noise_scale_and_thread_count(tmp_path):
     checkpoint = tmp_path / "ckpt"
     checkpoint.mkdir()
     (checkpoint / "config.json").write_text("{}")
@@ -88,10 +80,15 @@ def test_tables_store_results_per_noise_scale_and_keep_older_keys(tmp_path):
         return lambda: calls.append(value) or {"value": value}
 
     default = TablesConfig(results_dir=str(tmp_path / "stored"))
-    zero = TablesConfig(results_dir=str(tmp_path / "stored"), noise_scale=0.0)
+    zero = TablesConfig(results_dir=str(tmp_path / "stored"), noise_scale=0)
     assert _stored(default, str(checkpoint), settings, compute("default")) == {"value": "default"}
     assert _stored(zero, str(checkpoint), settings, compute("zero")) == {"value": "zero"}
     assert _stored(default, str(checkpoint), settings, compute("again")) == {"value": "default"}
-    assert calls == ["default", "zero"]
-    records = [json.loads(p.read_text()) for p in (tmp_path / "stored").glob("*.json")]
-    assert sorted(r["settings"].get("noise_scale", -1) for r in records) == [-1, 0.0]
+    zero.noise_scale = 0.0  # the same setting, written as a float
+    assert _stored(zero, str(checkpoint), settings, compute("zero again")) == {"value": "zero"}
+    two_threads = TablesConfig(results_dir=str(tmp_path / "stored"), threads=2)
+    assert _stored(two_threads, str(checkpoint), settings, compute("threads")) == {"value": "threads"}
+    assert calls == ["default", "zero", "threads"]
+    records = [json.loads(p.read_text())["settings"] for p in (tmp_path / "stored").glob("*.json")]
+    assert sorted(map(str, records)) == sorted(map(str, [settings, {**settings, "noise_scale": 0.0},
+                                                         {**settings, "threads": 2}]))

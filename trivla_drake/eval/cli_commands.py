@@ -83,8 +83,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
             raise ValueError(f"--threads must be at least 1, got {args.threads}")
         import torch
 
+        threads = torch.get_num_threads()
         torch.set_num_threads(args.threads)  # a serial run; each --workers process uses 1
-        report = evaluate(config, progress=not args.no_progress)
+        try:
+            report = evaluate(config, progress=not args.no_progress)
+        finally:
+            torch.set_num_threads(threads)
     except _user_errors() as error:
         print(f"trivla-drake evaluate: error: {error}", file=sys.stderr)
         return 2
@@ -122,7 +126,7 @@ def add_noise_scale_argument(parser: argparse.ArgumentParser) -> None:
     """--noise-scale: the inference setting of TriVLA's System 1 sampling (see EvalConfig.noise_scale)."""
     parser.add_argument("--noise-scale", type=float, default=None,
                         help="TriVLA: standard deviation of the noise System 1's flow-matching sampling starts "
-                             "from (default: the checkpoint's, 1 = the paper's; 0 = deterministic chunks)")
+                             "from (default 1, the paper's; 0: deterministic chunks)")
 
 
 def add_evaluate_parser(commands) -> argparse.ArgumentParser:

@@ -47,8 +47,8 @@ class EvalConfig:
     image_size: int | None = None
     # Cap on the steps of every episode (None: each task's own max_steps); for quick runs.
     max_steps: int | None = None
-    # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: the
-    # checkpoint's `policy.initial_noise_scale`, 1 unless set; 0: deterministic chunks).
+    # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: 1, the
+    # paper's; 0: deterministic chunks).
     noise_scale: float | None = None
 
     def validate(self) -> None:

@@ -56,8 +56,10 @@ class TablesConfig:
     max_steps: int | None = None
     # Folder of stored evaluation results to reuse and add to (None: store nothing).
     results_dir: str | None = None
-    # Every checkpoint's System 1 sampling noise scale (None: each checkpoint's own; see EvalConfig).
+    # Every checkpoint's System 1 sampling noise scale (None: 1, the paper's; see EvalConfig).
     noise_scale: float | None = None
+    # Torch threads of this process (workers use 1 each); part of the storage key when not 1.
+    threads: int = 1
 
     def validate(self) -> None:
         from trivla_drake.tasks import get_task
@@ -100,8 +102,12 @@ def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> d
     """compute() once per (checkpoint contents, settings) when `results_dir` is set, else every call."""
     if config.results_dir is None:
         return compute()
-    if config.noise_scale is not None:  # absent otherwise, so results stored before it existed still match
-        settings = {**settings, "noise_scale": config.noise_scale}
+    # Settings added later are keyed only when they differ from the default, so results stored before
+    # they existed still match.
+    if config.noise_scale is not None:
+        settings = {**settings, "noise_scale": float(config.noise_scale)}
+    if config.threads != 1:  # TriVLA's results depend on torch's thread count (reduction order)
+        settings = {**settings, "threads": config.threads}
     key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
     path = Path(config.results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
     if path.exists():

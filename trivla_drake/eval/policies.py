@@ -63,7 +63,7 @@ class RandomPolicy:
 
 def load_checkpoint_policy(path: str | Path, noise_scale: float | None = None) -> Policy:
     """A learned TriVLA policy from a checkpoint directory (see trivla_harness_policy.py); `noise_scale`
-    overrides the checkpoint's `policy.initial_noise_scale`."""
+    sets the standard deviation of the noise System 1's sampling starts from (default 1)."""
     from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
 
     policy = TriVLAHarnessPolicy.from_checkpoint(path)
@@ -74,7 +74,7 @@ def load_checkpoint_policy(path: str | Path, noise_scale: float | None = None) -
 
 def load_policy(spec: str, noise_scale: float | None = None) -> Policy:
     """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory.
-    `noise_scale` (TriVLA only) overrides the checkpoint's initial noise scale of System 1's sampling."""
+    `noise_scale` (TriVLA only): the initial noise scale of System 1's sampling (None: 1, the paper's)."""
     if noise_scale is not None and spec in ("oracle", "random"):
         raise ValueError(f"--noise-scale applies to TriVLA checkpoints only, not to --policy {spec}")
     if spec == "trivla":

@@ -8,7 +8,6 @@ closed-loop control on 2 CPU cores); `"tiny"` builds in well under a second for 
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass, field
 from typing import Any
@@ -169,11 +168,6 @@ class PolicyConfig:
     former_heads: int = 8
     former_queries_per_frame: int = 16  # L in Q[0:T, 0:L]
     num_inference_steps: int = 4  # Euler steps (GR00T: "4 are sufficient")
-    # Standard deviation of the Gaussian noise sampling starts from (flow-matching "temperature"):
-    # 1 samples the learned action distribution (the paper's), 0 integrates the flow from the
-    # noise mean, one deterministic chunk per observation. An inference setting: `evaluate`, `demo`
-    # and `tables` override it with --noise-scale.
-    initial_noise_scale: float = 1.0
     time_beta_alpha: float = 1.5  # training time t = (s - u) / s, u ~ Beta(alpha, beta)
     time_beta_beta: float = 1.0
     time_s: float = 0.999
@@ -244,8 +238,6 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(
             f"policy.former_dim ({pol.former_dim}) must be divisible by former_heads ({pol.former_heads})"
         )
-    if not (math.isfinite(pol.initial_noise_scale) and pol.initial_noise_scale >= 0):
-        raise ValueError(f"policy.initial_noise_scale must be a finite number >= 0; got {pol.initial_noise_scale}")
     if not 0 < pol.time_s <= 1:
         raise ValueError(f"policy.time_s must be in (0, 1]; got {pol.time_s}")
     if len(config.state_names) != pol.state_dim:

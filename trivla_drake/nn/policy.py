@@ -49,6 +49,11 @@ class FlowMatchingPolicy(nn.Module):
         kind in every prompt, so each gets its own standardisation statistics."""
         super().__init__()
         self.config = config
+        # Standard deviation of the noise sampling starts from (flow-matching "temperature"): 1 samples
+        # the learned action distribution (the paper's), 0 integrates the flow from the noise mean, one
+        # deterministic chunk per observation. An inference setting, not saved with the weights:
+        # `TriVLA.set_initial_noise_scale`, or --noise-scale in `evaluate`, `demo` and `tables`.
+        self.initial_noise_scale = 1.0
         dim, num_emb = config.hidden_size, config.num_embodiments
         self.state_input_dim = config.state_dim + (TCP_FEATURE_DIM if config.tcp_features else 0)
         self.state_encoder = EmbodimentMLP(num_emb, self.state_input_dim, dim, dim)
@@ -170,11 +175,11 @@ class FlowMatchingPolicy(nn.Module):
         num_steps: int | None = None,
     ) -> torch.Tensor:
         """Normalised action chunks (B, H, A) by Euler integration from Gaussian noise of standard
-        deviation `config.initial_noise_scale`."""
+        deviation `initial_noise_scale`."""
         c = self.config
         shape = (q_s.shape[0], c.action_horizon, c.action_dim)
         noise = torch.randn(shape, generator=generator, dtype=torch.float32).to(q_s.device, q_s.dtype)
-        noise = noise * c.initial_noise_scale
+        noise = noise * self.initial_noise_scale
         return flow_matching.euler_sample(
             lambda x, t: self.velocity(x, t, q_s, memory, memory_mask, embodiment_id),
             noise,

@@ -119,13 +119,19 @@ class TriVLA(nn.Module):
         stats.check_dims(self.config.policy.state_dim, self.config.policy.action_dim)
         self.normalizer.set_stats(stats)
 
+    @property
+    def initial_noise_scale(self) -> float:
+        """Standard deviation of the noise System 1's sampling starts from (1: the paper's)."""
+        return self.policy.initial_noise_scale
+
     def set_initial_noise_scale(self, scale: float) -> None:
         """Sets the standard deviation of the noise System 1's sampling starts from (see
-        `PolicyConfig.initial_noise_scale`); ValueError unless it is a finite number >= 0."""
+        `FlowMatchingPolicy.initial_noise_scale`; not saved in checkpoints); ValueError unless it is a
+        finite number >= 0."""
         scale = float(scale)
         if not (math.isfinite(scale) and scale >= 0):
             raise ValueError(f"noise_scale must be a finite number >= 0; got {scale}")
-        self.config.policy.initial_noise_scale = scale
+        self.policy.initial_noise_scale = scale
 
     def parameter_counts(self) -> dict[str, int]:
         """Parameters per system: system2 (SigLIP, projector, LLM), system3 (VAE, CLIP text, UNet),
