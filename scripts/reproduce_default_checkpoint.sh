@@ -25,19 +25,18 @@ trivla-drake collect --out "$DART_DATA" --episodes-per-task 60 --action-noise 1
 #    (standardised with statistics of the training episodes): 3000 steps of 32 at learning rate 3e-4
 #    on every 3rd frame, then 6000 more from those weights (seed 1; 9000 in all). The same for the
 #    ablation arms and the 10%-data arm (Systems 2 and 3 are untouched by the policy stage). --seed
-#    also picks the 10% subset, so that arm's two parts trained on different draws (72 episodes
-#    each, 135 distinct): kept as it was run.
+#    also draws the 10% subset, so both parts of that arm run with seed 0 (the same 72 episodes).
 POLICY=(train --stage policy --data "$DART_DATA" --lr 3e-4 --feature-stride 3 --threads 1)
-arm() {  # arm NAME INIT [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME.
-  local name=$1 init=$2
-  shift 2
+arm() {  # arm NAME INIT SEED [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME with SEED.
+  local name=$1 init=$2 seed=$3
+  shift 3
   trivla-drake "${POLICY[@]}" --steps 3000 --out "$RUNS/${name}_3k" --init "$init" "$@"
-  trivla-drake "${POLICY[@]}" --steps 6000 --seed 1 --out "$RUNS/$name" --init "$RUNS/${name}_3k/final" "$@"
+  trivla-drake "${POLICY[@]}" --steps 6000 --seed "$seed" --out "$RUNS/$name" --init "$RUNS/${name}_3k/final" "$@"
 }
-arm policy "$RUNS/vlm/final"
-arm policy_s13 "$RUNS/video/final" --no-system2
-arm policy_s1 "$RUNS/video/final" --no-system2 --no-system3
-arm policy_data10 "$RUNS/vlm/final" --fraction 0.1
+arm policy "$RUNS/vlm/final" 1
+arm policy_s13 "$RUNS/video/final" 1 --no-system2
+arm policy_s1 "$RUNS/video/final" 1 --no-system2 --no-system3
+arm policy_data10 "$RUNS/vlm/final" 0 --fraction 0.1
 # 6. The shipped checkpoint (float16 weights) and the tables.
 trivla-drake export "$RUNS/policy/final" --out models/trivla_cpu
 trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \

@@ -51,3 +51,17 @@ def test_the_shipped_checkpoint_is_the_export_of_the_9000_step_dart_run(tmp_path
     data = second[second.index("--data") + 1]
     collect_dart = next(argv for argv in calls if argv[0] == "collect" and argv[argv.index("--out") + 1] == data)
     assert "--action-noise" in collect_dart and "--no-tcp-features" not in second
+
+
+def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
+    """--seed also draws the --fraction subset: a continuation with another seed trains on other episodes."""
+    def option(argv, name, default=None):
+        return argv[argv.index(name) + 1] if name in argv else default
+
+    runs = {option(argv, "--out"): argv for argv in _dry_run(tmp_path) if argv[0] == "train" and "--fraction" in argv}
+    continued = [(argv, runs[option(argv, "--init").removesuffix("/final")]) for argv in runs.values()
+                 if option(argv, "--init", "").removesuffix("/final") in runs]
+    assert continued  # the 10%-data arm's second part
+    for second, first in continued:
+        assert option(second, "--fraction") == option(first, "--fraction")
+        assert option(second, "--seed", "0") == option(first, "--seed", "0")
