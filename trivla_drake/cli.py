@@ -136,7 +136,8 @@ def _cmd_tables(args) -> int:
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
                           seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
-                          noise_scale=args.noise_scale, threads=args.threads, results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
+                          noise_scale=args.noise_scale, threads=args.threads,
+                          results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
         config.tasks = _names(args.tasks)
     if args.latency_tasks:

@@ -60,8 +60,10 @@ class EvalConfig:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
-        if self.noise_scale is not None and not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
-            raise ValueError(f"--noise-scale must be a finite number >= 0, got {self.noise_scale}")
+        if self.noise_scale is not None:
+            from trivla_drake.nn.policy import check_noise_scale
+
+            check_noise_scale(self.noise_scale, "--noise-scale")
 
 
 def _policy(spec: str, noise_scale: float | None):

@@ -76,8 +76,10 @@ class TablesConfig:
                 raise ValueError(f"checkpoints['{role}'] = {path} is not a checkpoint directory (no config.json)")
         if not self.seeds or self.episodes < 1:
             raise ValueError("seeds must be non-empty and episodes >= 1")
-        if self.noise_scale is not None and not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
-            raise ValueError(f"noise_scale must be a finite number >= 0, got {self.noise_scale}")
+        if self.noise_scale is not None:
+            from trivla_drake.nn.policy import check_noise_scale
+
+            check_noise_scale(self.noise_scale, "--noise-scale")
 
 
 def _mean_stderr(values: list[float]) -> tuple[float, float]:

@@ -4,6 +4,8 @@ decoder that cross-attends to Q_vl and Q_p (eq. 5, trained by flow matching, see
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -15,6 +17,14 @@ from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
 from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_FEATURE_DIM
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
 from trivla_drake.nn.video_former import VideoFormer
+
+
+def check_noise_scale(scale: float, field: str = "noise_scale") -> float:
+    """`scale` as a float; ValueError naming `field` unless it is a finite number >= 0."""
+    scale = float(scale)
+    if not (math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"{field} must be a finite number >= 0, got {scale}")
+    return scale
 
 
 class ActionEncoder(nn.Module):

@@ -10,7 +10,6 @@ Actions leave the model unnormalised; the model applies the normalisation statis
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -24,7 +23,7 @@ from trivla_drake.nn.embodiment import check_embodiment_ids
 from trivla_drake.nn.panda_tcp import PandaTcpFeatures
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
-from trivla_drake.nn.policy import FlowMatchingPolicy
+from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
 from trivla_drake.nn.tokenizer import TextTokenizer, load_tokenizer
 from trivla_drake.nn.vision_language import VisionLanguageModule
 
@@ -128,10 +127,7 @@ class TriVLA(nn.Module):
         """Sets the standard deviation of the noise System 1's sampling starts from (see
         `FlowMatchingPolicy.initial_noise_scale`; not saved in checkpoints); ValueError unless it is a
         finite number >= 0."""
-        scale = float(scale)
-        if not (math.isfinite(scale) and scale >= 0):
-            raise ValueError(f"noise_scale must be a finite number >= 0; got {scale}")
-        self.policy.initial_noise_scale = scale
+        self.policy.initial_noise_scale = check_noise_scale(scale)
 
     def parameter_counts(self) -> dict[str, int]:
         """Parameters per system: system2 (SigLIP, projector, LLM), system3 (VAE, CLIP text, UNet),
