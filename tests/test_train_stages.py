@@ -197,3 +197,37 @@ def test_policy_stage_sets_the_tcp_features_of_an_init_checkpoint(runs, tmp_path
     with pytest.raises(ValueError, match="tcp_features"):
         train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "plain"), steps=4, resume=True,
                           init=runs["vlm"]["final_checkpoint"], **runs["common"]))
+
+
+def test_vlm_stage_uses_and_records_its_loss_weighting(runs, tmp_path):
+    """--vlm-loss answer changes the loss the vlm stage optimises (same first batch, another
+    average), is saved with the run's config, and a bad value names the field."""
+    first = {}
+    for weighting in ("token", "answer"):
+        train(TrainConfig(stage="vlm", out=str(tmp_path / weighting), init=runs["video"]["final_checkpoint"],
+                          steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
+                          vlm_loss_weighting=weighting, **runs["common"]))
+        first[weighting] = _losses(tmp_path / weighting)[0]
+        saved = json.loads((tmp_path / weighting / "final" / "train_config.json").read_text())
+        assert saved["vlm_loss_weighting"] == weighting
+    assert first["token"] != pytest.approx(first["answer"], rel=1e-3)
+    with pytest.raises(ValueError, match="vlm_loss_weighting"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "bad"), vlm_loss_weighting="sample").resolved().validate()
+
+
+def test_vlm_stage_adds_the_image_token_norm_and_checkpoints_its_statistics(runs, tmp_path):
+    """--image-token-norm gives System 2 a fresh batch norm of its image tokens (an --init without
+    one), trains it with the rest of System 2, and the checkpoint reloads it with its running
+    statistics; the other stages refuse the setting."""
+    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "vlm"), init=runs["video"]["final_checkpoint"],
+                                steps=3, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
+                                image_token_norm=True, **runs["common"]))
+    assert not load_checkpoint(runs["video"]["final_checkpoint"]).config.vision_language.image_token_norm
+    model = load_checkpoint(summary["final_checkpoint"])
+    norm = model.vision_language.image_token_norm
+    assert model.config.vision_language.image_token_norm and norm is not None
+    assert int(norm.num_batches_tracked) == 3 and float(norm.running_mean.abs().sum()) > 0
+    assert not torch.equal(norm.weight, torch.ones_like(norm.weight))  # trained
+    with pytest.raises(ValueError, match="image_token_norm"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"),
+                    image_token_norm=True).resolved().validate()

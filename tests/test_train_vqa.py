@@ -139,3 +139,38 @@ def test_answer_scores_are_the_lm_loss_of_each_candidate():
                                                   "instruction": [questions[b]], "answer": [answer]})
                 tokens = len(answer.encode()) + 1  # the answer's bytes and the end-of-turn token
                 assert float(scores[b][k]) == pytest.approx(-float(loss) * tokens, rel=1e-4, abs=1e-4)
+
+
+class _LookupModel:
+    """A stand-in for TriVLA's answer scoring: answers from a table keyed by (image, question) when
+    `sees`, else from the question alone (the same answer whatever the scene)."""
+
+    def __init__(self, dataset, sees: bool):
+        self.sees, self.training = sees, False
+        self.truth = {(dataset.static[dataset.rows["scene"][i]].tobytes(), dataset.rows["question"][i]):
+                      dataset.rows["answer"][i] for i in range(len(dataset))}
+
+    def eval(self):
+        return self
+
+    def train(self, mode=True):
+        return self
+
+    def score_vlm_answers(self, static, wrist, questions, candidates):
+        import torch
+
+        out = []
+        for image, question, cands in zip(static, questions, candidates):
+            answer = self.truth.get((image.numpy().tobytes(), question)) if self.sees else cands[-1]
+            out.append(torch.tensor([1.0 if c == answer else 0.0 for c in cands]))
+        return out
+
+
+def test_vqa_accuracy_with_shuffled_images_tells_a_grounded_model_from_a_blind_one(tmp_path):
+    settings = vqa.vqa_settings(scenes=20, questions_per_scene=6, seed=1, image_size=64)
+    dataset = vqa.VQADataset(vqa.ensure_vqa_set(tmp_path / "vqa", settings, progress=False), "train")
+    seeing = vqa.evaluate_vqa(_LookupModel(dataset, sees=True), dataset, batch_size=4)
+    assert seeing["vqa_accuracy"] == 1.0
+    assert seeing["vqa_accuracy_images_shuffled"] < 0.8  # another scene's images give other answers
+    blind = vqa.evaluate_vqa(_LookupModel(dataset, sees=False), dataset, batch_size=4)
+    assert blind["vqa_accuracy_images_shuffled"] == pytest.approx(blind["vqa_accuracy"])

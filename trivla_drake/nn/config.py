@@ -24,6 +24,17 @@ EE_DELTA_ACTION_NAMES: tuple[str, ...] = ("dx", "dy", "dz", "drx", "dry", "drz",
 """The default 7-D action: relative end-effector pose change, then a gripper command."""
 
 
+# How System 2's VQA next-token loss is averaged (`VisionLanguageModel.lm_loss`): over the batch's
+# answer tokens, or per answer.
+VLM_LOSS_WEIGHTINGS = ("token", "answer")
+
+
+def check_vlm_loss_weighting(weighting: str) -> None:
+    """Raises ValueError naming `vlm_loss_weighting` unless it is one of VLM_LOSS_WEIGHTINGS."""
+    if weighting not in VLM_LOSS_WEIGHTINGS:
+        raise ValueError(f"vlm_loss_weighting must be one of {', '.join(VLM_LOSS_WEIGHTINGS)}; got {weighting!r}")
+
+
 @dataclass
 class VisionEncoderConfig:
     """SigLIP vision tower shape (transformers `SiglipVisionConfig` fields); defaults: Eagle-2's SigLIP."""
@@ -63,6 +74,10 @@ class VisionLanguageConfig:
     select_layer: int = 12  # Q_vl = output of this LLM decoder layer (1-based), not the last one
     drop_unused_llm_layers: bool = True  # build only `select_layer` layers (GR00T does); False keeps all
     max_instruction_tokens: int = 128  # longer instructions are rejected
+    # Batch-normalise the projected image tokens (per token position and channel) before the LLM. Not
+    # in Eagle-2: an aid for System 2 trained from scratch, whose image tokens are otherwise ~99%
+    # the same in every scene, so its LLM learns to answer from the question alone.
+    image_token_norm: bool = False
     # Local pretrained weights (never downloaded). eagle2_path holds a whole Eagle-2 checkpoint
     # (vision_model.*, mlp1.*, language_model.*); otherwise siglip_path / llm_path load the parts.
     eagle2_path: str | None = None

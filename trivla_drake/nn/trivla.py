@@ -522,9 +522,13 @@ class TriVLA(nn.Module):
         scores = (picked * (target >= 0)).sum(-1)
         return list(torch.split(scores, [len(c) for c in candidates]))
 
-    def compute_vlm_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+    def compute_vlm_loss(
+        self, batch: Mapping[str, Any], *, weighting: str = "token"
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
-        (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. Returns (loss, info)."""
+        (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. `weighting`:
+        "token" (mean over the batch's answer tokens) or "answer" (each answer weighs the same).
+        Returns (loss, info)."""
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
         for key in ("static_rgb", "wrist_rgb", "instruction", "answer"):
@@ -541,5 +545,5 @@ class TriVLA(nn.Module):
         answers = list(batch["answer"])
         if len(answers) != len(ids) or not all(isinstance(a, str) and a for a in answers):
             raise ValueError("batch['answer'] must be one non-empty str per sample")
-        loss = self.vision_language.lm_loss(images, ids, answers)
+        loss = self.vision_language.lm_loss(images, ids, answers, weighting=weighting)
         return loss, {"vlm_loss": float(loss.detach())}

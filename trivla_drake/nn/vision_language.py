@@ -9,11 +9,12 @@ output by decoder layer `select_layer` (the paper's 12th), and the layers above 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn import pretrained
 from trivla_drake.nn.chat_prompt import PROMPT_AFTER_IMAGES, ChatPrompt, build_chat_prompt
-from trivla_drake.nn.config import VisionLanguageConfig
+from trivla_drake.nn.config import VisionLanguageConfig, check_vlm_loss_weighting
 from trivla_drake.nn.early_exit import run_until
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
 from trivla_drake.nn.tokenizer import TextTokenizer
@@ -50,6 +51,11 @@ class VisionLanguageModule(nn.Module):
         self.image_size = vcfg.image_size
         grid = vcfg.image_size // vcfg.patch_size
         self.num_image_tokens = grid * grid // round(1 / pixel_shuffle_ratio) ** 2
+        # Per (token position, channel) statistics over the batch in training, running ones in eval.
+        self.image_token_norm = (
+            nn.BatchNorm1d(self.num_image_tokens * llm.config.hidden_size, momentum=0.01)
+            if config.image_token_norm else None
+        )
         num_layers = len(llm.model.layers)
         if not 1 <= config.select_layer <= num_layers:
             raise ValueError(
@@ -126,7 +132,10 @@ class VisionLanguageModule(nn.Module):
         dtype = self.projector[1].weight.dtype
         pixels = images_to_siglip_input(images.to(self.projector[1].weight.device), dtype)
         patches = self.vision_encoder(pixel_values=pixels).last_hidden_state  # (N, G*G, Cv)
-        return self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
+        tokens = self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
+        if self.image_token_norm is not None:
+            tokens = self.image_token_norm(tokens.flatten(1)).view_as(tokens)
+        return tokens
 
     def build_prompts(
         self, instruction_ids: list[list[int]], num_images: int, answers: list[str] | None = None
@@ -186,10 +195,25 @@ class VisionLanguageModule(nn.Module):
         )
         return q_vl, mask
 
-    def lm_loss(self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str]) -> torch.Tensor:
-        """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining)."""
+    def lm_loss(
+        self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token"
+    ) -> torch.Tensor:
+        """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining).
+
+        `weighting` "token": the mean over every answer token of the batch, so a long caption weighs
+        as much as many one-word answers; "answer": each answer's mean, averaged over the batch, so a
+        one-word colour or yes/no answer weighs as much as a caption (`VLM_LOSS_WEIGHTINGS`)."""
+        check_vlm_loss_weighting(weighting)
         batch, views = images.shape[:2]
         tokens = self.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
         prompts = self.build_prompts(instruction_ids, views, answers)
         embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)
-        return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss
+        if weighting == "token":
+            return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss
+        logits = self.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits[:, :-1]
+        targets = labels[:, 1:]
+        per_token = F.cross_entropy(
+            logits.float().transpose(1, 2), targets, ignore_index=IGNORE_INDEX, reduction="none"
+        )
+        counted = (targets != IGNORE_INDEX).float()
+        return ((per_token * counted).sum(1) / counted.sum(1).clamp(min=1)).mean()

@@ -19,6 +19,8 @@ import json
 import os
 import sys
 
+from trivla_drake.nn.config import VLM_LOSS_WEIGHTINGS
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads on shared cores
 
 
@@ -53,6 +55,8 @@ def config_from_args(args: argparse.Namespace):
         feature_stride=args.feature_stride,
         feature_dtype=args.feature_dtype,
         vqa_scenes=args.vqa_scenes,
+        vlm_loss_weighting=args.vlm_loss,
+        image_token_norm=args.image_token_norm,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -126,6 +130,12 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="video: frames between clip frames (default: from --clip-seconds and the fps)")
     parser.add_argument("--keep-checkpoints", type=int, default=2, help="periodic checkpoints kept (default 2)")
     parser.add_argument("--vqa-scenes", type=int, default=500, help="vlm: scenes rendered for the VQA set")
+    parser.add_argument("--vlm-loss", choices=VLM_LOSS_WEIGHTINGS, default="token",
+                        help="vlm: average the next-token loss over the batch's answer tokens (default; long "
+                             "captions dominate) or per answer (each question weighs the same)")
+    parser.add_argument("--image-token-norm", action="store_true",
+                        help="vlm: batch-normalise System 2's image tokens before its LLM (a fresh norm when "
+                             "--init has none; for System 2 trained from scratch)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -14,6 +14,8 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
+from trivla_drake.nn.config import check_vlm_loss_weighting
+
 STAGES = ("video", "vlm", "policy")
 
 # Per-stage defaults for the fields left None (chosen for the `cpu` preset on a 2-core machine;
@@ -117,6 +119,12 @@ class TrainConfig:
     vqa_eval_questions: int = 400
     # vlm stage: seed of the scene sampling and question choice (part of the VQA set's key).
     vqa_seed: int = 0
+    # vlm stage: how the next-token loss averages: "token" (over the batch's answer tokens, so long
+    # captions dominate) or "answer" (each answer weighs the same, one-word answers included).
+    vlm_loss_weighting: str = "token"
+    # vlm stage: give System 2 the batch norm of its image tokens (`VisionLanguageConfig.image_token_norm`)
+    # when the starting model has none (a fresh one, initialised at the run's start).
+    image_token_norm: bool = False
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -166,6 +174,10 @@ class TrainConfig:
             raise ValueError(f"min_lr_ratio must be in [0, 1]; got {self.min_lr_ratio}")
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):
             raise ValueError(f"feature_dtype must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
+        check_vlm_loss_weighting(self.vlm_loss_weighting)
+        if self.image_token_norm and self.stage != "vlm":
+            raise ValueError("image_token_norm (--image-token-norm) is set by the vlm stage, which trains System 2; "
+                             f"the {self.stage} stage keeps its --init checkpoint's System 2")
         if self.precision not in ("fp32", "bf16"):
             raise ValueError(f"precision must be fp32 or bf16; got {self.precision!r}")
         if self.future_stride is not None and self.future_stride < 1:

@@ -42,7 +42,7 @@ def hash_module_weights(module: torch.nn.Module | None, hasher: Any) -> None:
     for name, tensor in sorted(module.state_dict().items()):
         t = tensor.detach().to("cpu").contiguous()
         hasher.update(f"{name}:{tuple(t.shape)}:{t.dtype};".encode())
-        hasher.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        hasher.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")  # 0-dim too
 
 
 def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:

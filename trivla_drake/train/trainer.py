@@ -52,10 +52,12 @@ def _transfer_weights(source: nn.Module, target: nn.Module) -> int:
 
 
 def apply_ablations(
-    model: TriVLA, use_system2: bool, use_system3: bool, where: str, tcp_features: bool | None = None
+    model: TriVLA, use_system2: bool, use_system3: bool, where: str, tcp_features: bool | None = None,
+    image_token_norm: bool = False,
 ) -> TriVLA:
-    """`model` with Systems 2 / 3 dropped as asked and System 1's tcp features set to `tcp_features`
-    (None: as they are), as a rebuilt model that keeps every weight that still fits. A system missing
+    """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
+    (None: as they are) and, with `image_token_norm`, a fresh batch norm of System 2's image tokens
+    where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -65,11 +67,15 @@ def apply_ablations(
                 f"pass --no-system{name[-1]} or start from a checkpoint that has it"
             )
     tcp = cfg.policy.tcp_features if tcp_features is None else tcp_features
-    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features) == (use_system2, use_system3, tcp):
+    norm = cfg.vision_language.image_token_norm or (image_token_norm and use_system2)
+    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm) == (
+        use_system2, use_system3, tcp, norm
+    ):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp),
+        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm),
     )
     tokenizers = {}
     if use_system2:
@@ -111,11 +117,15 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     elif config.init:
         model = load_checkpoint(config.init)
         where = f"--init checkpoint {config.init}"
-        model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features)
+        model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
+                                config.image_token_norm)
     else:
         cfg = make_config(config.preset, init_seed=config.seed,
                           use_system2=config.use_system2, use_system3=config.use_system3)
-        return TriVLA(dataclasses.replace(cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features)))
+        return TriVLA(dataclasses.replace(
+            cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features),
+            vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=config.image_token_norm),
+        ))
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
@@ -140,15 +150,16 @@ def trainable_module(model: TriVLA, stage: str) -> nn.Module:
 class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
-    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator) -> None:
+    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token") -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
+        self.vlm_loss_weighting = vlm_loss_weighting
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
-            return self.model.compute_vlm_loss(batch)
+            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting)
         return self.model.compute_loss(batch, generator=self.generator)
 
 
@@ -396,7 +407,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         _set_rng_state(rng[env.rank] if env.rank < len(rng) else rng[0], generator)
         if env.rank >= len(rng):
             generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
-    loss_module = StageLoss(model, config.stage, generator)
+    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(

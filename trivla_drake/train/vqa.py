@@ -423,11 +423,16 @@ def answer_log_likelihoods(model, static, wrist, questions: list[str], candidate
 
 def evaluate_vqa(model, dataset: VQADataset, *, batch_size: int = 8, max_questions: int = 400) -> dict[str, float]:
     """Accuracy on held-out questions with a closed answer set: the candidate answer with the highest
-    likelihood is the model's answer. Returns overall and per-answer-type accuracy, and chance level."""
+    likelihood is the model's answer. Returns overall and per-answer-type accuracy, and chance level.
+
+    Also `vqa_accuracy_images_shuffled`: the same questions asked with another scene's images (those
+    of the question half the list away). A model that reads the images falls toward chance; one that
+    answers from the question alone scores the same as with its own images."""
     import torch
 
     index = [i for i in range(len(dataset)) if dataset.rows["answer_type"][i] in ANSWER_SETS][:max_questions]
     correct: dict[str, list[bool]] = {}
+    shuffled: list[bool] = []
     chance: list[float] = []
     was_training = model.training
     model.eval()
@@ -443,12 +448,25 @@ def evaluate_vqa(model, dataset: VQADataset, *, batch_size: int = 8, max_questio
                     guess = cands[int(score.argmax())]
                     correct.setdefault(item["answer_type"], []).append(guess == item["answer"])
                     chance.append(1.0 / len(cands))
+                # The images of the question half the list away: another scene (when there is one).
+                scene = dataset.rows["scene"]
+                partners = [index[(j + len(index) // 2) % len(index)] for j in range(start, start + len(items))]
+                keep = [k for k, p in enumerate(partners) if scene[p] != scene[index[start + k]]]
+                others = {k: dataset[partners[k]] for k in keep}
+                if keep:
+                    swapped = collate_vqa([{**items[k], "static_rgb": others[k]["static_rgb"],
+                                            "wrist_rgb": others[k]["wrist_rgb"]} for k in keep])
+                    scores = answer_log_likelihoods(model, swapped["static_rgb"], swapped["wrist_rgb"],
+                                                    swapped["instruction"], [candidates[k] for k in keep])
+                    shuffled += [candidates[k][int(score.argmax())] == items[k]["answer"]
+                                 for k, score in zip(keep, scores)]
     finally:
         model.train(was_training)
     every = [c for v in correct.values() for c in v]
     result = {"vqa_eval_questions": float(len(every)),
               "vqa_accuracy": float(np.mean(every)) if every else math.nan,
-              "vqa_chance_accuracy": float(np.mean(chance)) if chance else math.nan}
+              "vqa_chance_accuracy": float(np.mean(chance)) if chance else math.nan,
+              "vqa_accuracy_images_shuffled": float(np.mean(shuffled)) if shuffled else math.nan}
     for answer_type, values in sorted(correct.items()):
         result[f"vqa_accuracy_{answer_type}"] = float(np.mean(values))
     return result
