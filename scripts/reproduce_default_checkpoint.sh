@@ -103,3 +103,12 @@ if [[ "${CLEAN:-0}" == 1 ]]; then
         --no-progress --json > "$RUNS/evaluations/clean_longer_seed$seed.json"
   done
 fi
+# 11. Optional (GROUNDING=1; results/system2_grounding/): System 2 trained like step 3 with each of the
+#     two vlm-stage aids, to see whether it reads the images (vqa_accuracy_images_shuffled in each
+#     run's summary.json).
+if [[ "${GROUNDING:-0}" == 1 ]]; then
+  trivla-drake train --stage vlm --out "$RUNS/vlm_answer" --init "$RUNS/video/final" --steps 1000 --threads 2 \
+      --vlm-loss answer
+  trivla-drake train --stage vlm --out "$RUNS/vlm_norm" --init "$RUNS/video/final" --steps 1000 --threads 2 \
+      --image-token-norm
+fi
