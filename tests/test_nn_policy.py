@@ -64,6 +64,28 @@ def test_dit_starts_as_identity_blocks_and_respects_the_memory_mask():
     torch.testing.assert_close(out, dit(x, cond, memory2, mask))
 
 
+def test_vl_position_embedding_marks_where_each_leading_token_lies():
+    """With `vl_position_embedding`, identical Q_vl tokens at the leading (image) positions become
+    different condition tokens, one per position; the instruction tokens after them are untouched.
+    Without it the same tokens stay the same (System 1 cannot tell where a token lies)."""
+    import dataclasses
+
+    config = make_config("tiny").policy
+    torch.manual_seed(0)
+    q_vl = torch.randn(1, 1, 8).expand(2, 7, 8)
+    memories = {}
+    for on in (False, True):
+        policy = FlowMatchingPolicy(dataclasses.replace(config, vl_position_embedding=on), vl_dim=8,
+                                    dynamics_feature_shape=None, vl_fixed_positions=4)
+        policy.vl_standardizer.eval()  # its identity start: every position the same statistics
+        memories[on], _ = policy.memory(q_vl, None, None, 2)
+        assert (policy.vl_position is not None) == on
+    same = lambda m, i, j: torch.allclose(m[:, i], m[:, j])  # noqa: E731
+    assert all(same(memories[False], 0, j) for j in range(1, 7))
+    assert not any(same(memories[True], i, j) for i in range(4) for j in range(i + 1, 7))
+    assert same(memories[True], 4, 5) and same(memories[True], 5, 6)
+
+
 def test_action_head_overfits_a_fixed_chunk():
     config = make_config("tiny").policy
     torch.manual_seed(0)

@@ -146,3 +146,53 @@ def test_image_token_norm_standardises_each_token_position_and_channel():
     vl.eval()
     with torch.no_grad():
         torch.testing.assert_close(vl.encode_images(frames[:1]), vl.encode_images(frames)[:1], atol=1e-5, rtol=1e-4)
+
+
+def test_dense_block_targets_mark_the_cells_that_show_each_block():
+    """A token's cell shows block k when at least DENSE_MIN_FRACTION of its pixels are labelled
+    1 + k; cells are row-major, as the tokens after pixel shuffle."""
+    from trivla_drake.nn.vision_language import dense_block_targets
+
+    labels = torch.zeros(1, 56, 56, dtype=torch.uint8)
+    labels[0, 30:32, 5:10] = 2  # 10 pixels of block 1 in cell (row 1, column 0): token 2
+    labels[0, 3, 40:42] = 3  # 2 pixels of block 2 in cell (0, 1): 0.26% of its 784, below the share
+    targets = dense_block_targets(labels, grid=2, classes=3)
+    assert targets.shape == (1, 4, 3)
+    assert targets[0, 2, 1] == 1 and targets.sum() == 1
+    with pytest.raises(ValueError, match="block labels go up to 4"):
+        dense_block_targets(labels + 1 * (labels == 3), grid=2, classes=3)
+    with pytest.raises(ValueError, match="divisible by 3"):
+        dense_block_targets(labels, grid=3, classes=3)
+
+
+def test_dense_loss_trains_the_vision_tower_and_names_bad_labels():
+    import dataclasses
+
+    cfg = make_config("tiny", use_system3=False)
+    cfg = dataclasses.replace(cfg, vision_language=dataclasses.replace(cfg.vision_language, dense_classes=3))
+    torch.manual_seed(0)
+    model = TriVLA(cfg)
+    size = model.image_size
+    frames = _frames(4, seed=4)
+    labels = torch.zeros(2, 2, size, size, dtype=torch.uint8)
+    labels[:, 0, 10:40, 10:40] = 1
+    labels[1, 1, 100:140, 50:90] = 3
+    batch = {"static_rgb": frames[:2], "wrist_rgb": frames[2:], "instruction": ["is the drawer open?"] * 2,
+             "answer": ["no", "yes"], "block_labels": labels}
+    plain, plain_info = model.compute_vlm_loss(batch)
+    loss, info = model.compute_vlm_loss(batch, dense_weight=0.5)
+    assert "dense_loss" not in plain_info and info["vlm_loss"] == pytest.approx(plain_info["vlm_loss"], rel=1e-5)
+    assert loss.item() == pytest.approx(info["vlm_loss"] + 0.5 * info["dense_loss"], rel=1e-5)
+    model.zero_grad()
+    loss.backward()
+    vl = model.vision_language
+    assert vl.block_head.weight.grad.abs().sum() > 0
+    assert next(vl.vision_encoder.parameters()).grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="block_labels"):
+        model.compute_vlm_loss({k: v for k, v in batch.items() if k != "block_labels"}, dense_weight=1.0)
+    with pytest.raises(ValueError, match="block_labels"):
+        model.compute_vlm_loss({**batch, "block_labels": labels[:, :1]}, dense_weight=1.0)
+    with pytest.raises(ValueError, match="dense_classes is 0"):
+        TriVLA(make_config("tiny", use_system3=False)).compute_vlm_loss(batch, dense_weight=1.0)
+    with pytest.raises(ValueError, match="dense_classes"):
+        TriVLA(dataclasses.replace(cfg, vision_language=dataclasses.replace(cfg.vision_language, dense_classes=-1)))

@@ -231,3 +231,47 @@ def test_vlm_stage_adds_the_image_token_norm_and_checkpoints_its_statistics(runs
     with pytest.raises(ValueError, match="image_token_norm"):
         TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"),
                     image_token_norm=True).resolved().validate()
+
+
+def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
+    """--vl-position-embedding gives System 1 a fresh embedding of Q_vl's leading token positions
+    (an --init without one), trains it, reloads it from the checkpoint, keeps System 2 as it was,
+    and is refused where there is no System 1 training or no System 2."""
+    init = runs["policy"]["final_checkpoint"]
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "pos"), init=init, steps=3,
+                                vl_position_embedding=True, **runs["common"]))
+    before, after = load_checkpoint(init), load_checkpoint(summary["final_checkpoint"])
+    assert before.policy.vl_position is None and not before.config.policy.vl_position_embedding
+    assert after.config.policy.vl_position_embedding
+    fixed = after.vision_language.instruction_offset(2)
+    assert after.policy.vl_position.shape == (fixed, after.config.policy.hidden_size)
+    assert float(after.policy.vl_position.detach().abs().sum()) > 0
+    for name, value in before.vision_language.state_dict().items():
+        torch.testing.assert_close(after.vision_language.state_dict()[name], value)
+    # resuming from a checkpoint that has it keeps it without the flag
+    again = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "again"),
+                              init=summary["final_checkpoint"], steps=1, **runs["common"]))
+    assert load_checkpoint(again["final_checkpoint"]).policy.vl_position.shape[0] == fixed
+    with pytest.raises(ValueError, match="vl_position_embedding.*policy stage, not the vlm stage"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), vl_position_embedding=True).resolved().validate()
+    with pytest.raises(ValueError, match="vl_position_embedding.*needs System 2"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "n"), use_system2=False,
+                    vl_position_embedding=True).resolved().validate()
+
+
+def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_path):
+    """--dense-weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
+    set's label maps next to the LM loss, logs the dense loss, and is refused outside the vlm stage."""
+    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "dense"), init=runs["video"]["final_checkpoint"],
+                                steps=3, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
+                                dense_weight=1.0, **runs["common"]))
+    model = load_checkpoint(summary["final_checkpoint"])
+    assert model.config.vision_language.dense_classes == 3 and model.vision_language.block_head is not None
+    logged = [json.loads(line) for line in (tmp_path / "dense" / "log.jsonl").read_text().splitlines()]
+    assert len(logged) == 3 and all(row["dense_loss"] > 0 for row in logged)
+    assert all(row["loss"] > row["vlm_loss"] for row in logged)
+    # the policy stage keeps the head untouched (it trains System 1 only)
+    with pytest.raises(ValueError, match="dense_weight.*not the policy stage"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), dense_weight=1.0).resolved().validate()
+    with pytest.raises(ValueError, match="dense_weight must be >= 0"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=-1.0).resolved().validate()

@@ -3,6 +3,8 @@ questions are not asked, answers are balanced, and the rendered set is made once
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -94,6 +96,13 @@ def test_rendered_scenes_show_the_state_and_the_set_is_made_once(tmp_path, monke
     closed_off = SceneSpec(blocks=spec.blocks, drawer_opening=0.0, lamp_on=False, arm_q=spec.arm_q)
     static, wrist, state = renderer.render(closed_off)
     assert static.shape == wrist.shape == (64, 64, 3) and static.dtype == np.uint8
+    # the label maps mark each block's pixels, which have that block's colour
+    labels = renderer.block_labels()
+    assert labels.shape == (2, 64, 64) and labels.dtype == np.uint8 and labels.max() <= len(vqa.BLOCK_COLORS)
+    assert set(np.unique(labels[0])) == {0, 1, 2, 3}
+    for k, color in enumerate(vqa.BLOCK_COLORS):
+        mean_rgb = static[labels[0] == k + 1].astype(float).mean(axis=0)
+        assert int(np.argmax(mean_rgb)) == ("red", "green", "blue").index(color), (color, mean_rgb)
     assert not state.lamp_on and state.drawer_opening == pytest.approx(0.0)
     for changed in (SceneSpec(blocks=spec.blocks, drawer_opening=0.13, lamp_on=False, arm_q=spec.arm_q),
                     SceneSpec(blocks=spec.blocks, drawer_opening=0.0, lamp_on=True, arm_q=spec.arm_q)):
@@ -107,6 +116,8 @@ def test_rendered_scenes_show_the_state_and_the_set_is_made_once(tmp_path, monke
     assert len(train_set) == 45 and len(eval_set) == 5  # scene 9 is held out
     item = train_set[0]
     assert item["static_rgb"].shape == (64, 64, 3) and item["answer"]
+    assert item["block_labels"].shape == (2, 64, 64) and item["block_labels"].max() > 0
+    assert vqa.collate_vqa([item, item])["block_labels"].shape == (2, 2, 64, 64)
     assert len({train_set.static[i].tobytes() for i in range(10)}) == 10  # every scene differs
 
     def fail(*args, **kwargs):
@@ -116,6 +127,11 @@ def test_rendered_scenes_show_the_state_and_the_set_is_made_once(tmp_path, monke
     assert vqa.ensure_vqa_set(folder, settings) == folder
     with pytest.raises(ValueError, match="other settings"):
         vqa.ensure_vqa_set(folder, {**settings, "scenes": 11})
+    # a set of the format before the label maps is named, not read half
+    meta = json.loads((folder / "meta.json").read_text())
+    (folder / "meta.json").write_text(json.dumps({**meta, "format": 1}))
+    with pytest.raises(ValueError, match="format 1.*labels.npy"):
+        vqa.VQADataset(folder, "train")
 
 
 def test_answer_scores_are_the_lm_loss_of_each_candidate():

@@ -78,6 +78,11 @@ class VisionLanguageConfig:
     # in Eagle-2: an aid for System 2 trained from scratch, whose image tokens are otherwise ~99%
     # the same in every scene, so its LLM learns to answer from the question alone.
     image_token_norm: bool = False
+    # Classes of a linear head on each projected image token that says which blocks its image cell
+    # shows (`VisionLanguageModule.block_head`), trained by the vlm stage's dense loss
+    # (`train --dense-weight`) from the renderer's label images so the vision tower learns where the
+    # blocks are. Not in Eagle-2 (its SigLIP comes pretrained); unused at inference. 0: no head.
+    dense_classes: int = 0
     # Local pretrained weights (never downloaded). eagle2_path holds a whole Eagle-2 checkpoint
     # (vision_model.*, mlp1.*, language_model.*); otherwise siglip_path / llm_path load the parts.
     eagle2_path: str | None = None
@@ -189,6 +194,12 @@ class PolicyConfig:
     # Also feed the state MLP the Panda's tool-centre-point pose computed from the state's joint angles
     # (nn/panda_tcp.py). On in every preset; off in checkpoints saved before it existed.
     tcp_features: bool = False
+    # Add a learned embedding to each of Q_vl's leading tokens (prompt head and image tokens, the same
+    # layout in every prompt) after their standardisation, so System 1 knows where in which image a
+    # token it attends to lies, as the Video Former's spatial_pos does for System 3's tokens. Without
+    # it an attended image token says what is there but not where. Off in checkpoints saved before it
+    # existed and in the shipped one; `train --stage policy --vl-position-embedding` turns it on.
+    vl_position_embedding: bool = False
 
 
 @dataclass
@@ -232,6 +243,8 @@ def validate_config(config: TriVLAConfig) -> None:
         )
     if vl.max_instruction_tokens < 1:
         raise ValueError("vision_language.max_instruction_tokens must be >= 1")
+    if vl.dense_classes < 0:
+        raise ValueError(f"vision_language.dense_classes must be >= 0; got {vl.dense_classes}")
     n_up = len(dyn.unet.up_block_types)
     if not 1 <= dyn.feature_up_blocks <= n_up:
         raise ValueError(f"dynamics.feature_up_blocks must be in [1, {n_up}]; got {dyn.feature_up_blocks}")

@@ -79,6 +79,10 @@ class FlowMatchingPolicy(nn.Module):
             self.vl_standardizer = SequenceStandardizer(vl_fixed_positions, vl_dim)
             self.vl_norm = nn.LayerNorm(vl_dim)
             self.vl_proj = nn.Linear(vl_dim, dim)
+            self.vl_position = (
+                nn.Parameter(torch.randn(vl_fixed_positions, dim) * 0.02)
+                if config.vl_position_embedding and vl_fixed_positions > 0 else None
+            )
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
             # One set of statistics per view and feature element, shared by the T+1 frames.
@@ -119,7 +123,11 @@ class FlowMatchingPolicy(nn.Module):
         if self.uses_vl:
             if q_vl is None:
                 raise ValueError("q_vl is required: System 2 is enabled in this model")
-            parts.append(self.vl_proj(self.vl_norm(self.vl_standardizer(q_vl))) + self.source_embed[0])
+            vl = self.vl_proj(self.vl_norm(self.vl_standardizer(q_vl))) + self.source_embed[0]
+            if self.vl_position is not None:
+                fixed = self.vl_position.shape[0]
+                vl = torch.cat([vl[:, :fixed] + self.vl_position.to(vl.dtype), vl[:, fixed:]], dim=1)
+            parts.append(vl)
             masks.append(
                 q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
             )

@@ -523,15 +523,17 @@ class TriVLA(nn.Module):
         return list(torch.split(scores, [len(c) for c in candidates]))
 
     def compute_vlm_loss(
-        self, batch: Mapping[str, Any], *, weighting: str = "token"
+        self, batch: Mapping[str, Any], *, weighting: str = "token", dense_weight: float = 0.0
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
         (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. `weighting`:
         "token" (mean over the batch's answer tokens) or "answer" (each answer weighs the same).
-        Returns (loss, info)."""
+        With `dense_weight` > 0, plus that times the dense loss of System 2's block head on the same
+        image tokens, against "block_labels" uint8 (B, 2, H, W) (static, wrist; 0 nothing, 1 + k
+        block k). Returns (loss, info)."""
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
-        for key in ("static_rgb", "wrist_rgb", "instruction", "answer"):
+        for key in ("static_rgb", "wrist_rgb", "instruction", "answer") + (("block_labels",) if dense_weight else ()):
             if key not in batch:
                 raise ValueError(f"batch is missing {key!r}")
         images = torch.stack(
@@ -545,5 +547,17 @@ class TriVLA(nn.Module):
         answers = list(batch["answer"])
         if len(answers) != len(ids) or not all(isinstance(a, str) and a for a in answers):
             raise ValueError("batch['answer'] must be one non-empty str per sample")
-        loss = self.vision_language.lm_loss(images, ids, answers, weighting=weighting)
-        return loss, {"vlm_loss": float(loss.detach())}
+        labels = None
+        if dense_weight:
+            if not dense_weight > 0:
+                raise ValueError(f"dense_weight must be >= 0; got {dense_weight}")
+            labels = torch.as_tensor(batch["block_labels"])
+            if labels.dtype != torch.uint8 or tuple(labels.shape) != (images.shape[0], 2) + tuple(images.shape[2:4]):
+                raise ValueError(f"batch['block_labels'] must be uint8 {(images.shape[0], 2) + tuple(images.shape[2:4])}; "
+                                 f"got {labels.dtype} {tuple(labels.shape)}")
+        loss, dense = self.vision_language.vlm_losses(images, ids, answers, weighting=weighting, block_labels=labels)
+        info = {"vlm_loss": float(loss.detach())}
+        if dense is not None:
+            info["dense_loss"] = float(dense.detach())
+            loss = loss + dense_weight * dense
+        return loss, info

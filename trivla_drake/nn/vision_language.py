@@ -22,6 +22,25 @@ from trivla_drake.nn.tokenizer import TextTokenizer
 IGNORE_INDEX = -100  # label of positions the LM loss skips (prompt and image tokens)
 
 
+DENSE_MIN_FRACTION = 0.005
+"""A token's image cell shows a block when at least this share of its pixels do (4 of 28 x 28)."""
+
+
+def dense_block_targets(labels: torch.Tensor, grid: int, classes: int) -> torch.Tensor:
+    """uint8 label maps (N, S, S), 0 for nothing and 1 + k for block k, -> float (N, grid^2, classes):
+    1 where at least DENSE_MIN_FRACTION of the pixels of the token's cell show block k. Cells are in
+    row-major order, the order of the image tokens after pixel shuffle."""
+    n, size, width = labels.shape
+    if size != width or size % grid:
+        raise ValueError(f"block labels must be square with a side divisible by {grid}; got {size} x {width}")
+    if int(labels.max()) > classes:
+        raise ValueError(f"block labels go up to {int(labels.max())}, the head has {classes} classes")
+    onehot = F.one_hot(labels.long(), classes + 1)[..., 1:].float()
+    cell = size // grid
+    share = onehot.reshape(n, grid, cell, grid, cell, classes).mean(dim=(2, 4))
+    return (share.reshape(n, grid * grid, classes) >= DENSE_MIN_FRACTION).float()
+
+
 def images_to_siglip_input(images: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
     """uint8 (N, H, W, 3) RGB -> float (N, 3, H, W) scaled to [-1, 1] (SigLIP's mean = std = 0.5)."""
     x = images.permute(0, 3, 1, 2).to(dtype) / 255.0
@@ -56,6 +75,7 @@ class VisionLanguageModule(nn.Module):
             nn.BatchNorm1d(self.num_image_tokens * llm.config.hidden_size, momentum=0.01)
             if config.image_token_norm else None
         )
+        self.block_head = nn.Linear(llm.config.hidden_size, config.dense_classes) if config.dense_classes > 0 else None
         num_layers = len(llm.model.layers)
         if not 1 <= config.select_layer <= num_layers:
             raise ValueError(
@@ -198,22 +218,43 @@ class VisionLanguageModule(nn.Module):
     def lm_loss(
         self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token"
     ) -> torch.Tensor:
+        """Next-token cross-entropy on the answer tokens (`vlm_losses` without the dense loss)."""
+        return self.vlm_losses(images, instruction_ids, answers, weighting=weighting)[0]
+
+    def dense_block_loss(self, tokens: torch.Tensor, block_labels: torch.Tensor) -> torch.Tensor:
+        """Binary cross-entropy of `block_head` on projected image tokens (N, n, D) against the cells'
+        blocks in uint8 label maps (N, S, S) (`dense_block_targets`)."""
+        if self.block_head is None:
+            raise ValueError("this System 2 has no block head (vision_language.dense_classes is 0)")
+        grid = round(self.num_image_tokens**0.5)
+        targets = dense_block_targets(block_labels.to(tokens.device), grid, self.block_head.out_features)
+        return F.binary_cross_entropy_with_logits(self.block_head(tokens).float(), targets)
+
+    def vlm_losses(
+        self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token",
+        block_labels: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining).
 
         `weighting` "token": the mean over every answer token of the batch, so a long caption weighs
         as much as many one-word answers; "answer": each answer's mean, averaged over the batch, so a
-        one-word colour or yes/no answer weighs as much as a caption (`VLM_LOSS_WEIGHTINGS`)."""
+        one-word colour or yes/no answer weighs as much as a caption (`VLM_LOSS_WEIGHTINGS`).
+
+        With `block_labels` (B, V, S, S) also the dense loss of the same image tokens
+        (`dense_block_loss`), else None. Returns (LM loss, dense loss)."""
         check_vlm_loss_weighting(weighting)
         batch, views = images.shape[:2]
-        tokens = self.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
+        flat = self.encode_images(images.flatten(0, 1))
+        dense = None if block_labels is None else self.dense_block_loss(flat, block_labels.flatten(0, 1))
+        tokens = flat.unflatten(0, (batch, views))
         prompts = self.build_prompts(instruction_ids, views, answers)
         embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)
         if weighting == "token":
-            return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss
+            return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss, dense
         logits = self.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits[:, :-1]
         targets = labels[:, 1:]
         per_token = F.cross_entropy(
             logits.float().transpose(1, 2), targets, ignore_index=IGNORE_INDEX, reduction="none"
         )
         counted = (targets != IGNORE_INDEX).float()
-        return ((per_token * counted).sum(1) / counted.sum(1).clamp(min=1)).mean()
+        return ((per_token * counted).sum(1) / counted.sum(1).clamp(min=1)).mean(), dense

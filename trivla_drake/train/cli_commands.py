@@ -57,6 +57,8 @@ def config_from_args(args: argparse.Namespace):
         vqa_scenes=args.vqa_scenes,
         vlm_loss_weighting=args.vlm_loss,
         image_token_norm=args.image_token_norm,
+        vl_position_embedding=args.vl_position_embedding,
+        dense_weight=args.dense_weight,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -136,6 +138,12 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--image-token-norm", action="store_true",
                         help="vlm: batch-normalise System 2's image tokens before its LLM (a fresh norm when "
                              "--init has none; for System 2 trained from scratch)")
+    parser.add_argument("--dense-weight", type=float, default=0.0,
+                        help="vlm: weight of a dense loss that trains System 2's image tokens to say which blocks "
+                             "their image cells show (from the renderer's label images); 0: none")
+    parser.add_argument("--vl-position-embedding", action="store_true",
+                        help="policy: give System 1 a learned embedding of System 2's token positions, so it "
+                             "knows where in the image a token it reads lies (added when --init has none)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

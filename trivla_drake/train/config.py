@@ -125,6 +125,13 @@ class TrainConfig:
     # vlm stage: give System 2 the batch norm of its image tokens (`VisionLanguageConfig.image_token_norm`)
     # when the starting model has none (a fresh one, initialised at the run's start).
     image_token_norm: bool = False
+    # vlm stage: weight of the dense loss of System 2's block head (which blocks each image token's
+    # cell shows, from the renderer's label images; `VisionLanguageConfig.dense_classes`); a run from
+    # a checkpoint without the head adds one. 0: no dense loss (the shipped recipe).
+    dense_weight: float = 0.0
+    # policy stage: give System 1 an embedding of Q_vl's token positions
+    # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
+    vl_position_embedding: bool = False
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -175,6 +182,17 @@ class TrainConfig:
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):
             raise ValueError(f"feature_dtype must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
         check_vlm_loss_weighting(self.vlm_loss_weighting)
+        if self.vl_position_embedding and self.stage != "policy":
+            raise ValueError("vl_position_embedding (--vl-position-embedding) is part of System 1: set it on the "
+                             f"policy stage, not the {self.stage} stage")
+        if self.vl_position_embedding and not self.use_system2:
+            raise ValueError("vl_position_embedding (--vl-position-embedding) embeds System 2's token positions: "
+                             "it needs System 2 (drop --no-system2)")
+        if not self.dense_weight >= 0:
+            raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
+        if self.dense_weight and self.stage != "vlm":
+            raise ValueError("dense_weight (--dense-weight) weighs a loss of the vlm stage, which trains System 2; "
+                             f"not the {self.stage} stage")
         if self.image_token_norm and self.stage != "vlm":
             raise ValueError("image_token_norm (--image-token-norm) is set by the vlm stage, which trains System 2; "
                              f"the {self.stage} stage keeps its --init checkpoint's System 2")

@@ -54,9 +54,13 @@ def _transfer_weights(source: nn.Module, target: nn.Module) -> int:
 def apply_ablations(
     model: TriVLA, use_system2: bool, use_system3: bool, where: str, tcp_features: bool | None = None,
     image_token_norm: bool = False,
+    vl_position_embedding: bool = False,
+    dense_classes: int = 0,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
-    (None: as they are) and, with `image_token_norm`, a fresh batch norm of System 2's image tokens
+    (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
+    it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
+    where it has none and, with `dense_classes` > 0, a fresh block head on System 2's image tokens
     where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
@@ -68,14 +72,16 @@ def apply_ablations(
             )
     tcp = cfg.policy.tcp_features if tcp_features is None else tcp_features
     norm = cfg.vision_language.image_token_norm or (image_token_norm and use_system2)
-    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm) == (
-        use_system2, use_system3, tcp, norm
-    ):
+    vl_position = use_system2 and (cfg.policy.vl_position_embedding or vl_position_embedding)
+    classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
+    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
+            cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
-        policy=dataclasses.replace(cfg.policy, tcp_features=tcp),
-        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm),
+        policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position),
+        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
     )
     tokenizers = {}
     if use_system2:
@@ -108,6 +114,13 @@ def _resolve_preset(config: TrainConfig) -> str:
     return preset
 
 
+def _dense_classes(config: TrainConfig) -> int:
+    """Classes of System 2's block head a run asks for: one per block colour with a dense loss."""
+    from trivla_drake.tasks.scene import BLOCK_COLORS
+
+    return len(BLOCK_COLORS) if config.dense_weight > 0 else 0
+
+
 def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     """The model a run starts from: the resumed checkpoint, the `init` checkpoint (with ablations
     applied), or a fresh `preset` model initialised from `seed`."""
@@ -118,13 +131,15 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         model = load_checkpoint(config.init)
         where = f"--init checkpoint {config.init}"
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
-                                config.image_token_norm)
+                                config.image_token_norm, config.vl_position_embedding, _dense_classes(config))
     else:
         cfg = make_config(config.preset, init_seed=config.seed,
                           use_system2=config.use_system2, use_system3=config.use_system3)
         return TriVLA(dataclasses.replace(
-            cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features),
-            vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=config.image_token_norm),
+            cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
+                                            vl_position_embedding=config.vl_position_embedding and config.use_system2),
+            vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=config.image_token_norm,
+                                                dense_classes=_dense_classes(config) if config.use_system2 else 0),
         ))
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
@@ -150,16 +165,17 @@ def trainable_module(model: TriVLA, stage: str) -> nn.Module:
 class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
-    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token") -> None:
+    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
+                 dense_weight: float = 0.0) -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
-        self.vlm_loss_weighting = vlm_loss_weighting
+        self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
-            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting)
+            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight)
         return self.model.compute_loss(batch, generator=self.generator)
 
 
@@ -377,6 +393,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     model.requires_grad_(False)
     trained = trainable_module(model, config.stage)
     trained.requires_grad_(True)
+    if config.stage == "vlm" and model.vision_language.block_head is not None and not config.dense_weight:
+        model.vision_language.block_head.requires_grad_(False)  # no dense loss: the head gets no gradient
     model.to(env.device)
     model.eval()
     trained.train()
@@ -407,7 +425,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         _set_rng_state(rng[env.rank] if env.rank < len(rng) else rng[0], generator)
         if env.rank >= len(rng):
             generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
-    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting)
+    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(

@@ -10,6 +10,8 @@ instructions); a question whose answer would be within a few centimetres of a bo
 The set is written once to a folder (atomically: a temporary folder renamed into place):
     meta.json    settings, counts, the held-out scenes
     static.npy   uint8 (scenes, S, S, 3)      wrist.npy   uint8 (scenes, S, S, 3)
+    labels.npy   uint8 (scenes, 2, S, S): what each pixel of the static / wrist view shows, from the
+                 renderer's label image: 0 anything else, 1 + i the block BLOCK_COLORS[i]
     qa.parquet   scene, question, answer, kind, answer_type, split ("train" / "eval")
 """
 
@@ -38,7 +40,7 @@ from trivla_drake.tasks.scene import (
     sample_scene,
 )
 
-VQA_FORMAT_VERSION = 1
+VQA_FORMAT_VERSION = 2  # 2: labels.npy
 EVAL_EVERY = 10  # every 10th scene is held out for evaluation
 
 # Position bands [m] in the robot frame over the work area (x away from the robot, y to its left),
@@ -280,6 +282,22 @@ class SceneRenderer:
             images.append(np.array(image.data[:, :, :3], dtype=np.uint8))
         return images[0], images[1], self.handles.read(self.context)
 
+    def block_labels(self) -> np.ndarray:
+        """uint8 (2, S, S) of the scene last rendered: per pixel of the static and wrist view, 1 + the
+        index in BLOCK_COLORS of the block it shows, else 0 (from the cameras' label images, where
+        the plant labels each geometry with its body's index)."""
+        blocks = {int(body.index()): 1 + i for i, body in enumerate(self.handles.blocks[c] for c in BLOCK_COLORS)}
+        views = []
+        for key in ("static", "wrist"):
+            sensor = self.sensors[key]
+            raw = np.asarray(sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(self.context)).data)
+            raw = raw[:, :, 0].astype(np.int64)
+            out = np.zeros(raw.shape, dtype=np.uint8)
+            for label, value in blocks.items():
+                out[raw == label] = value
+            views.append(out)
+        return np.stack(views)
+
 
 # ---------------------------------------------------------------------------------------------
 # The cached set
@@ -312,10 +330,12 @@ def generate_vqa_set(folder: str | os.PathLike, settings: dict[str, Any], *, pro
         layout = renderer.layout()
         static = np.lib.format.open_memmap(tmp / "static.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
         wrist = np.lib.format.open_memmap(tmp / "wrist.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
+        labels = np.lib.format.open_memmap(tmp / "labels.npy", mode="w+", dtype=np.uint8, shape=(n, 2, size, size))
         rows: dict[str, list] = {k: [] for k in ("scene", "question", "answer", "kind", "answer_type", "split")}
         for i in tqdm(range(n), desc="rendering VQA scenes", unit="scene", disable=not progress):
             rng = np.random.default_rng([int(settings["seed"]), i])
             static[i], wrist[i], scene = renderer.render(sample_vqa_scene(rng, layout))
+            labels[i] = renderer.block_labels()
             for item in sample_questions(scene, rng, int(settings["questions_per_scene"])):
                 rows["scene"].append(i)
                 rows["question"].append(item.question)
@@ -323,9 +343,9 @@ def generate_vqa_set(folder: str | os.PathLike, settings: dict[str, Any], *, pro
                 rows["kind"].append(item.kind)
                 rows["answer_type"].append(item.answer_type)
                 rows["split"].append("eval" if i % EVAL_EVERY == EVAL_EVERY - 1 else "train")
-        static.flush()
-        wrist.flush()
-        del static, wrist
+        for array in (static, wrist, labels):
+            array.flush()
+        del static, wrist, labels
         pq.write_table(pa.table(rows), tmp / "qa.parquet")
         meta = {**settings, "questions": len(rows["scene"]), "eval_every": EVAL_EVERY}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
@@ -375,12 +395,16 @@ class VQADataset:
         meta = read_vqa_meta(self.folder)
         if meta is None:
             raise ValueError(f"{self.folder} holds no VQA set (meta.json is missing)")
+        if meta.get("format") != VQA_FORMAT_VERSION:
+            raise ValueError(f"{self.folder} holds a VQA set of format {meta.get('format')!r}, this version reads "
+                             f"format {VQA_FORMAT_VERSION} (with labels.npy): generate it again in another folder")
         self.meta = meta
         table = pq.read_table(self.folder / "qa.parquet").to_pydict()
         keep = [i for i, s in enumerate(table["split"]) if s == split]
         self.rows = {k: [v[i] for i in keep] for k, v in table.items()}
         self.static = np.load(self.folder / "static.npy", mmap_mode="r")
         self.wrist = np.load(self.folder / "wrist.npy", mmap_mode="r")
+        self.labels = np.load(self.folder / "labels.npy", mmap_mode="r")
 
     @property
     def image_size(self) -> int:
@@ -394,6 +418,7 @@ class VQADataset:
         return {
             "static_rgb": np.asarray(self.static[scene]),
             "wrist_rgb": np.asarray(self.wrist[scene]),
+            "block_labels": np.asarray(self.labels[scene]),
             "instruction": self.rows["question"][i],
             "answer": self.rows["answer"][i],
             "answer_type": self.rows["answer_type"][i],
@@ -407,6 +432,7 @@ def collate_vqa(items: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "static_rgb": torch.from_numpy(np.stack([it["static_rgb"] for it in items])),
         "wrist_rgb": torch.from_numpy(np.stack([it["wrist_rgb"] for it in items])),
+        "block_labels": torch.from_numpy(np.stack([it["block_labels"] for it in items])),
         "instruction": [it["instruction"] for it in items],
         "answer": [it["answer"] for it in items],
     }
