@@ -6,7 +6,12 @@ import pytest
 
 from trivla_drake.cli import main
 from trivla_drake.data.lerobot import LeRobotReader
-from trivla_drake.eval.feature_probe import first_frame_block_positions, first_frame_features, ridge_probe
+from trivla_drake.eval.feature_probe import (
+    first_frame_block_positions,
+    first_frame_features,
+    first_frame_image_tokens,
+    ridge_probe,
+)
 from trivla_drake.tasks.scene import BLOCK_COLORS
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
@@ -68,6 +73,10 @@ def test_feature_sets_of_the_first_frames(saved, tmp_path):
     image_tokens = int(tokens * tokens * vl.config.pixel_shuffle_ratio**2)
     q_vl = next(v for n, v in features.items() if n.startswith("System 2 Q_vl"))
     assert q_vl.shape[1] == image_tokens * vl.hidden_size
+    both = first_frame_image_tokens(model, LeRobotReader(data), [0, 1, 2], batch=2)
+    assert both.shape == (3, 2 * image_tokens, vl.hidden_size)
+    flat_static = next(v for n, v in features.items() if n.startswith("System 2 image tokens"))
+    np.testing.assert_allclose(both[:, :image_tokens].reshape(3, -1), flat_static, rtol=1e-4, atol=1e-5)
 
 
 def test_probe_cli_errors_name_the_problem(saved, tmp_path, capsys):
@@ -75,6 +84,29 @@ def test_probe_cli_errors_name_the_problem(saved, tmp_path, capsys):
     data = write_synthetic_dataset(tmp_path / "d", episodes=12, length=4, image_size=16)
     assert main(["probe", "--data", data, "--checkpoint", checkpoint, "--episodes", "5"]) == 2
     assert "--episodes must be at least 10" in capsys.readouterr().err
+    assert main(["probe", "--data", data, "--checkpoint", checkpoint, "--attention-steps", "-1"]) == 2
+    assert "--attention-steps must be >= 0" in capsys.readouterr().err
     assert main(["probe", "--data", data, "--checkpoint", checkpoint]) == 2
     assert "not written by `collect`" in capsys.readouterr().err
     assert main(["probe", "--data", str(tmp_path / "missing"), "--checkpoint", checkpoint]) == 2
+
+
+def test_probe_table_has_the_ridge_and_attention_rows(saved, tmp_path, monkeypatch):
+    """Every feature set gets a ridge row and System 2's image tokens two attention rows (without and
+    with token positions); --attention-steps 0 leaves those out."""
+    from trivla_drake.eval import feature_probe
+
+    model, _ = saved
+    data = write_synthetic_dataset(tmp_path / "d", episodes=12, length=4, image_size=16)
+    rng = np.random.default_rng(0)
+    monkeypatch.setattr(feature_probe, "first_frame_block_positions",
+                        lambda reader, episodes: rng.normal(size=(len(episodes), 2 * len(BLOCK_COLORS))))
+    results = feature_probe.probe_block_positions(model, LeRobotReader(data), attention_steps=3)
+    attention = [r for r in results if "attention read-out" in r.feature]
+    assert len(attention) == 2 and "no token positions" in attention[0].feature
+    assert "+ token positions" in attention[1].feature
+    assert all(len(r.rmse) == 2 * len(BLOCK_COLORS) and np.isfinite(r.rmse).all() for r in results)
+    table = feature_probe.format_probe_table(results, 12)
+    assert table.count("\n| System 2 image tokens, both views, attention") == 2
+    plain = feature_probe.probe_block_positions(model, LeRobotReader(data), attention_steps=0)
+    assert len(plain) == len(results) - 2

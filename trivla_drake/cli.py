@@ -160,12 +160,14 @@ def _cmd_probe(args) -> int:
 
     if args.episodes is not None and args.episodes < 10:
         raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
+    if args.attention_steps < 0:
+        raise ValueError(f"--attention-steps must be >= 0, got {args.attention_steps}")
     _set_torch_threads(args.threads)
     reader = LeRobotReader(args.data)
     model = load_model(args.checkpoint)
     if args.feature_noise and model.dynamics is not None:
         model.dynamics.config.feature_noise = args.feature_noise
-    results = probe_block_positions(model, reader, max_episodes=args.episodes)
+    results = probe_block_positions(model, reader, max_episodes=args.episodes, attention_steps=args.attention_steps)
     episodes = reader.num_episodes if args.episodes is None else min(args.episodes, reader.num_episodes)
     if args.json:
         print(json.dumps({"episodes": episodes, "results": [r.to_dict() for r in results]}))
@@ -251,6 +253,8 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
     probe.add_argument("--feature-noise", choices=("fixed", "random"), default=None,
                        help="System 3's noise latents for this probe (default: the checkpoint's setting)")
+    probe.add_argument("--attention-steps", type=int, default=1500,
+                       help="Adam steps of the attention read-outs of System 2's image tokens (0: none)")
     probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     probe.set_defaults(run=_cmd_probe)

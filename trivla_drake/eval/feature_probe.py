@@ -6,7 +6,9 @@ each block at the first frame. Each feature set of that first frame is then regr
 positions with cross-validated ridge regression (kernel form, since features have far more dimensions
 than there are episodes), and the held-out R^2 and RMSE are reported. R^2 near 1: the feature holds
 the positions linearly; near 0 or below: it holds nothing a linear read-out finds. Raw pixels of the
-same frame are the reference. `trivla-drake probe` prints the table.
+same frame are the reference. For System 2's image tokens there are also attention read-outs, the way
+System 1 reads them, without and with token positions (`attention_probe`). `trivla-drake probe`
+prints the table.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 import torch
 
 from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.eval.attention_probe import ATTENTION_PROBE_STEPS, attention_probe
 from trivla_drake.eval.collect import CAMERAS
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.tasks.scene import BLOCK_COLORS, Layout
@@ -137,23 +140,46 @@ def first_frame_features(model: TriVLA, reader: LeRobotReader, episodes: list[in
     return result
 
 
+@torch.inference_mode()
+def first_frame_image_tokens(model: TriVLA, reader: LeRobotReader, episodes: list[int], *, batch: int = 16) -> np.ndarray:
+    """System 2's projected image tokens of the static then the wrist view at each episode's first
+    frame: (N, 2 * tokens per view, D)."""
+    parts = []
+    for start in range(0, len(episodes), batch):
+        chunk = episodes[start : start + batch]
+        views = [torch.from_numpy(resize_frames(np.stack([reader.episode_video(e, CAMERAS[key])[0] for e in chunk]),
+                                                model.image_size)) for key in ("static_rgb", "wrist_rgb")]
+        parts.append(torch.cat([model.vision_language.encode_images(v.to(model.device)) for v in views], dim=1))
+    return torch.cat(parts).float().cpu().numpy()
+
+
 def probe_block_positions(
-    model: TriVLA, reader: LeRobotReader, *, max_episodes: int | None = None, folds: int = 5
+    model: TriVLA, reader: LeRobotReader, *, max_episodes: int | None = None, folds: int = 5,
+    attention_steps: int = ATTENTION_PROBE_STEPS,
 ) -> list[ProbeResult]:
-    """One ProbeResult per feature set, targets the (x, y) of every block at the first frame."""
+    """One ProbeResult per feature set, targets the (x, y) of every block at the first frame; with
+    System 2 and `attention_steps` > 0 also its image tokens' attention read-outs (ridge: 0)."""
     episodes = list(range(reader.num_episodes if max_episodes is None else min(max_episodes, reader.num_episodes)))
     targets = first_frame_block_positions(reader, episodes)
     results = []
     for name, features in first_frame_features(model, reader, episodes).items():
         r2, rmse, ridge = ridge_probe(features, targets, folds=folds)
         results.append(ProbeResult(name, int(features.shape[1]), r2.tolist(), rmse.tolist(), ridge))
+    if model.vision_language is not None and attention_steps > 0:
+        tokens = first_frame_image_tokens(model, reader, episodes)
+        for positions in (False, True):
+            r2, rmse = attention_probe(tokens, targets, positions=positions, steps=attention_steps)
+            name = ("System 2 image tokens, both views, attention read-out per block "
+                    + ("+ token positions" if positions else "(no token positions)"))
+            results.append(ProbeResult(name, int(tokens.shape[1] * tokens.shape[2]), r2.tolist(), rmse.tolist(), 0.0))
     return results
 
 
 def format_probe_table(results: list[ProbeResult], episodes: int) -> str:
     """Markdown: one row per feature set, R^2 and RMSE averaged over the blocks' x and y."""
     lines = [
-        f"Linear probe of block positions at the first frame ({episodes} episodes, 5-fold ridge)",
+        f"Probes of block positions at the first frame ({episodes} episodes; ridge rows: 5-fold linear "
+        "ridge on the flattened features; attention rows: one learned query per block, 20% held out)",
         "",
         "| feature | dims | R^2 (x, y mean) | RMSE [cm] |",
         "| --- | --- | --- | --- |",
