@@ -10,6 +10,7 @@ from trivla_drake.eval.feature_probe import (
     first_frame_block_positions,
     first_frame_features,
     first_frame_image_tokens,
+    first_frames,
     ridge_probe,
 )
 from trivla_drake.tasks.scene import BLOCK_COLORS
@@ -60,7 +61,9 @@ def test_block_positions_are_the_scene_the_demonstration_saw(tmp_path):
 def test_feature_sets_of_the_first_frames(saved, tmp_path):
     model, _ = saved
     data = write_synthetic_dataset(tmp_path / "d", episodes=3, length=6, image_size=16)
-    features = first_frame_features(model, LeRobotReader(data), [0, 1, 2], batch=2)
+    reader = LeRobotReader(data)
+    frames = first_frames(reader, [0, 1, 2])
+    features = first_frame_features(model, frames, [reader.task_of(e) for e in range(3)], batch=2)
     names = sorted(features)
     assert any(n.startswith("System 2 image tokens") for n in names)
     assert any(n.startswith("System 2 Q_vl") for n in names)
@@ -73,7 +76,7 @@ def test_feature_sets_of_the_first_frames(saved, tmp_path):
     image_tokens = int(tokens * tokens * vl.config.pixel_shuffle_ratio**2)
     q_vl = next(v for n, v in features.items() if n.startswith("System 2 Q_vl"))
     assert q_vl.shape[1] == image_tokens * vl.hidden_size
-    both = first_frame_image_tokens(model, LeRobotReader(data), [0, 1, 2], batch=2)
+    both = first_frame_image_tokens(model, frames, batch=2)
     assert both.shape == (3, 2 * image_tokens, vl.hidden_size)
     flat_static = next(v for n, v in features.items() if n.startswith("System 2 image tokens"))
     np.testing.assert_allclose(both[:, :image_tokens].reshape(3, -1), flat_static, rtol=1e-4, atol=1e-5)

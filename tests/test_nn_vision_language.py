@@ -192,6 +192,8 @@ def test_dense_loss_trains_the_vision_tower_and_names_bad_labels():
         model.compute_vlm_loss({k: v for k, v in batch.items() if k != "block_labels"}, dense_weight=1.0)
     with pytest.raises(ValueError, match="block_labels"):
         model.compute_vlm_loss({**batch, "block_labels": labels[:, :1]}, dense_weight=1.0)
+    with pytest.raises(ValueError, match="dense_weight must be >= 0"):
+        model.compute_vlm_loss(batch, dense_weight=-1.0)
     with pytest.raises(ValueError, match="dense_classes is 0"):
         TriVLA(make_config("tiny", use_system3=False)).compute_vlm_loss(batch, dense_weight=1.0)
     with pytest.raises(ValueError, match="dense_classes"):

@@ -110,20 +110,27 @@ def first_frame_block_positions(reader: LeRobotReader, episodes: list[int]) -> n
     return np.asarray(rows)
 
 
+def first_frames(reader: LeRobotReader, episodes: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """The static and the wrist camera's first frame of each episode: uint8 (N, H, W, 3) each."""
+    return tuple(np.stack([reader.episode_video(e, CAMERAS[key])[0] for e in episodes])
+                 for key in ("static_rgb", "wrist_rgb"))
+
+
 @torch.inference_mode()
-def first_frame_features(model: TriVLA, reader: LeRobotReader, episodes: list[int], *, batch: int = 16) -> dict:
-    """Each feature set System 1 can read, from the first frame of each episode: name -> (N, D)."""
-    static = np.stack([reader.episode_video(e, CAMERAS["static_rgb"])[0] for e in episodes])
-    wrist = np.stack([reader.episode_video(e, CAMERAS["wrist_rgb"])[0] for e in episodes])
-    pixels = resize_frames(static, PIXEL_REFERENCE_SIZE).reshape(len(episodes), -1).astype(np.float32)
+def first_frame_features(
+    model: TriVLA, frames: tuple[np.ndarray, np.ndarray], instructions: list[str], *, batch: int = 16
+) -> dict:
+    """Each feature set System 1 can read, from `first_frames` and each episode's instruction:
+    name -> (N, D)."""
+    static, wrist = frames
+    pixels = resize_frames(static, PIXEL_REFERENCE_SIZE).reshape(len(static), -1).astype(np.float32)
     out: dict[str, list[np.ndarray]] = {}
     static_t = torch.from_numpy(resize_frames(static, model.image_size))
     wrist_t = torch.from_numpy(resize_frames(wrist, model.image_size))
-    instructions = [reader.task_of(e) for e in episodes]
     vl = model.vision_language
     # The static view's image tokens follow the prompt head, which is the same in every prompt.
     static_first = len(vl.build_prompts([[]], 2)[0].text_pieces[0]) if vl is not None else 0
-    for start in range(0, len(episodes), batch):
+    for start in range(0, len(static), batch):
         s, w = static_t[start : start + batch], wrist_t[start : start + batch]
         texts = instructions[start : start + batch]
         if vl is not None:
@@ -141,15 +148,12 @@ def first_frame_features(model: TriVLA, reader: LeRobotReader, episodes: list[in
 
 
 @torch.inference_mode()
-def first_frame_image_tokens(model: TriVLA, reader: LeRobotReader, episodes: list[int], *, batch: int = 16) -> np.ndarray:
-    """System 2's projected image tokens of the static then the wrist view at each episode's first
-    frame: (N, 2 * tokens per view, D)."""
-    parts = []
-    for start in range(0, len(episodes), batch):
-        chunk = episodes[start : start + batch]
-        views = [torch.from_numpy(resize_frames(np.stack([reader.episode_video(e, CAMERAS[key])[0] for e in chunk]),
-                                                model.image_size)) for key in ("static_rgb", "wrist_rgb")]
-        parts.append(torch.cat([model.vision_language.encode_images(v.to(model.device)) for v in views], dim=1))
+def first_frame_image_tokens(model: TriVLA, frames: tuple[np.ndarray, np.ndarray], *, batch: int = 16) -> np.ndarray:
+    """System 2's projected image tokens of the static then the wrist view of `first_frames`:
+    (N, 2 * tokens per view, D)."""
+    views = [torch.from_numpy(resize_frames(f, model.image_size)) for f in frames]
+    parts = [torch.cat([model.vision_language.encode_images(v[start : start + batch].to(model.device)) for v in views],
+                       dim=1) for start in range(0, len(views[0]), batch)]
     return torch.cat(parts).float().cpu().numpy()
 
 
@@ -161,12 +165,13 @@ def probe_block_positions(
     System 2 and `attention_steps` > 0 also its image tokens' attention read-outs (ridge: 0)."""
     episodes = list(range(reader.num_episodes if max_episodes is None else min(max_episodes, reader.num_episodes)))
     targets = first_frame_block_positions(reader, episodes)
+    frames = first_frames(reader, episodes)
     results = []
-    for name, features in first_frame_features(model, reader, episodes).items():
+    for name, features in first_frame_features(model, frames, [reader.task_of(e) for e in episodes]).items():
         r2, rmse, ridge = ridge_probe(features, targets, folds=folds)
         results.append(ProbeResult(name, int(features.shape[1]), r2.tolist(), rmse.tolist(), ridge))
     if model.vision_language is not None and attention_steps > 0:
-        tokens = first_frame_image_tokens(model, reader, episodes)
+        tokens = first_frame_image_tokens(model, frames)
         for positions in (False, True):
             r2, rmse = attention_probe(tokens, targets, positions=positions, steps=attention_steps)
             name = ("System 2 image tokens, both views, attention read-out per block "

@@ -24,7 +24,7 @@ EE_DELTA_ACTION_NAMES: tuple[str, ...] = ("dx", "dy", "dz", "drx", "dry", "drz",
 """The default 7-D action: relative end-effector pose change, then a gripper command."""
 
 
-# How System 2's VQA next-token loss is averaged (`VisionLanguageModule.lm_loss`): over the batch's
+# How System 2's VQA next-token loss is averaged (`VisionLanguageModule.vlm_losses`): over the batch's
 # answer tokens, or per answer.
 VLM_LOSS_WEIGHTINGS = ("token", "answer")
 

@@ -533,6 +533,8 @@ class TriVLA(nn.Module):
         block k). Returns (loss, info)."""
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
+        if not dense_weight >= 0:
+            raise ValueError(f"dense_weight must be >= 0; got {dense_weight}")
         for key in ("static_rgb", "wrist_rgb", "instruction", "answer") + (("block_labels",) if dense_weight else ()):
             if key not in batch:
                 raise ValueError(f"batch is missing {key!r}")
@@ -549,8 +551,6 @@ class TriVLA(nn.Module):
             raise ValueError("batch['answer'] must be one non-empty str per sample")
         labels = None
         if dense_weight:
-            if not dense_weight > 0:
-                raise ValueError(f"dense_weight must be >= 0; got {dense_weight}")
             labels = torch.as_tensor(batch["block_labels"])
             if labels.dtype != torch.uint8 or tuple(labels.shape) != (images.shape[0], 2) + tuple(images.shape[2:4]):
                 raise ValueError(f"batch['block_labels'] must be uint8 {(images.shape[0], 2) + tuple(images.shape[2:4])}; "

@@ -215,12 +215,6 @@ class VisionLanguageModule(nn.Module):
         )
         return q_vl, mask
 
-    def lm_loss(
-        self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token"
-    ) -> torch.Tensor:
-        """Next-token cross-entropy on the answer tokens (`vlm_losses` without the dense loss)."""
-        return self.vlm_losses(images, instruction_ids, answers, weighting=weighting)[0]
-
     def dense_block_loss(self, tokens: torch.Tensor, block_labels: torch.Tensor) -> torch.Tensor:
         """Binary cross-entropy of `block_head` on projected image tokens (N, n, D) against the cells'
         blocks in uint8 label maps (N, S, S) (`dense_block_targets`)."""
