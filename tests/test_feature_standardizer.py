@@ -60,7 +60,8 @@ def test_system1_reads_standardised_features():
     q_vl = torch.randn(2, policy.vl_standardizer.positions + 4, model.vision_language.hidden_size, generator=gen)
     static, wrist = (torch.randn(2, *model.dynamics.feature_shape, generator=gen) for _ in range(2))
     with torch.no_grad():
-        before = policy.memory(q_vl, None, policy.aggregate_dynamics(static, wrist), 2)[0]
+        q_s = torch.zeros(2, policy.config.hidden_size)
+        before = policy.conditions(q_s, q_vl, None, policy.aggregate_dynamics(static, wrist))[1]
         shape_vl, shape_dyn = policy.vl_standardizer.shape, policy.dynamics_standardizers[0].shape
         mean_vl, std_vl = torch.randn(shape_vl, generator=gen), torch.rand(shape_vl, generator=gen) + 0.5
         mean_d, std_d = torch.randn(shape_dyn, generator=gen), torch.rand(shape_dyn, generator=gen) + 0.5
@@ -69,8 +70,8 @@ def test_system1_reads_standardised_features():
             s.fit(mean_d, std_d)
         index = torch.arange(q_vl.shape[1]).clamp_max(policy.vl_standardizer.positions)
         moved_vl = q_vl * std_vl[index] + mean_vl[index]
-        after = policy.memory(moved_vl, None, policy.aggregate_dynamics(static * std_d + mean_d,
-                                                                         wrist * std_d + mean_d), 2)[0]
+        after = policy.conditions(q_s, moved_vl, None, policy.aggregate_dynamics(static * std_d + mean_d,
+                                                                                  wrist * std_d + mean_d))[1]
     torch.testing.assert_close(after, before, rtol=1e-4, atol=1e-4)
 
 

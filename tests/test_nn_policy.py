@@ -78,7 +78,7 @@ def test_vl_position_embedding_marks_where_each_leading_token_lies():
         policy = FlowMatchingPolicy(dataclasses.replace(config, vl_position_embedding=on), vl_dim=8,
                                     dynamics_feature_shape=None, vl_fixed_positions=4)
         policy.vl_standardizer.eval()  # its identity start: every position the same statistics
-        memories[on], _ = policy.memory(q_vl, None, None, 2)
+        memories[on] = policy.conditions(torch.zeros(2, config.hidden_size), q_vl, None, None)[1]
         assert (policy.vl_position is not None) == on
     same = lambda m, i, j: torch.allclose(m[:, i], m[:, j])  # noqa: E731
     assert all(same(memories[False], 0, j) for j in range(1, 7))
@@ -97,7 +97,7 @@ def test_action_head_overfits_a_fixed_chunk():
     opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
     for _ in range(200):
         q_s = policy.encode_state(torch.zeros(1, policy.state_input_dim), eid)
-        memory, mask = policy.memory(q_vl, None, None, 1)
+        q_s, memory, mask, _ = policy.conditions(q_s, q_vl, None, None)
         loss, _ = policy.loss(actions.expand(16, -1, -1), q_s.expand(16, -1), memory.expand(16, -1, -1),
                               mask.expand(16, -1), eid.expand(16), generator=gen)
         opt.zero_grad()
@@ -105,7 +105,7 @@ def test_action_head_overfits_a_fixed_chunk():
         opt.step()
     with torch.no_grad():
         q_s = policy.encode_state(torch.zeros(1, policy.state_input_dim), eid)
-        memory, mask = policy.memory(q_vl, None, None, 1)
+        q_s, memory, mask, _ = policy.conditions(q_s, q_vl, None, None)
         sample = policy.sample(q_s.expand(8, -1), memory.expand(8, -1, -1), mask.expand(8, -1), eid.expand(8),
                                generator=gen, num_steps=10)
     error = (sample - actions).abs().mean().item()

@@ -260,6 +260,37 @@ def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
                     vl_position_embedding=True).resolved().validate()
 
 
+def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp_path):
+    """--grounding-weight gives System 1 a fresh instruction grounding (an --init without one), trains
+    it on sub-goals from the dataset's tcp poses, logs both losses, keeps it when continued, and is
+    refused without a weight, without tcp poses, outside the policy stage and without System 2."""
+    data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24, tcp_pose=True)
+    init = runs["policy"]["final_checkpoint"]
+    summary = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "g"), init=init, steps=3,
+                                grounding_weight=0.5, **runs["common"]))
+    before, after = load_checkpoint(init), load_checkpoint(summary["final_checkpoint"])
+    assert before.policy.grounding is None and after.config.policy.instruction_grounding
+    fresh = TriVLA(after.config).policy.grounding.state_dict()
+    assert any(not torch.equal(v, fresh[k]) for k, v in after.policy.grounding.state_dict().items())
+    logged = [json.loads(line) for line in open(tmp_path / "g" / "log.jsonl")]
+    assert all({"flow_loss", "grounding_loss"} <= set(row) for row in logged)
+    grounded = summary["final_checkpoint"]
+    with pytest.raises(ValueError, match="grounding_weight.*> 0"):
+        train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), init=grounded, steps=1,
+                          **runs["common"]))
+    with pytest.raises(ValueError, match="observation.tcp_pose"):
+        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "t"), init=grounded, steps=1,
+                          grounding_weight=1.0, **runs["common"]))
+    assert not (tmp_path / "t" / "final").exists()
+    with pytest.raises(ValueError, match="grounding_weight.*policy stage, not the vlm stage"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), grounding_weight=1.0).resolved().validate()
+    with pytest.raises(ValueError, match="grounding_weight.*needs System 2"):
+        TrainConfig(stage="policy", data=data, out=str(tmp_path / "n"), use_system2=False,
+                    grounding_weight=1.0).resolved().validate()
+    with pytest.raises(ValueError, match="grounding_weight must be a finite number >= 0"):
+        TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
+
+
 def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_path):
     """--dense-weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
     set's label maps next to the LM loss, logs the dense loss, and is refused outside the vlm stage."""

@@ -15,6 +15,8 @@ Sample for frame t of an episode with T frames (keys; shapes with the defaults):
     action_is_stale         (chunk_size,) bool, True where a disturbed step (collection with action
                             noise, episode metadata 'trivla/perturbed_frames') lies between frame t and
                             that action: it answers a state frame t does not show, so it is no label
+    subgoal_position        (3,) float32 [m], where the tool-centre point is when the gripper next
+                            changes (data/subgoals.py); only when the dataset has observation.tcp_pose
     episode_index, frame_index
 
 Decoded videos of the most recently used episodes are cached (`cache_episodes`).
@@ -27,8 +29,10 @@ from collections import OrderedDict
 import numpy as np
 
 from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader
+from trivla_drake.data.subgoals import next_gripper_event_positions
 
 GRIPPER_INDEX = 6
+TCP_POSE_KEY = "observation.tcp_pose"  # (7,): x, y, z [m] in the world, then a quaternion
 
 
 class TrainingSamples:
@@ -87,6 +91,10 @@ class TrainingSamples:
         data["perturbed_before"] = perturbed_counts(
             self.reader.episodes[episode].get(PERTURBED_FRAMES_KEY) or [], len(data[self.action_key])
         )
+        if TCP_POSE_KEY in data:
+            data["subgoal_position"] = next_gripper_event_positions(
+                np.asarray(data[self.action_key])[:, GRIPPER_INDEX], np.asarray(data[TCP_POSE_KEY])[:, :3]
+            )
         self._cache[episode] = data
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -119,6 +127,8 @@ class TrainingSamples:
             "action_is_stale": stale,
             "future_is_pad": future >= length,
         }
+        if "subgoal_position" in data:
+            sample["subgoal_position"] = data["subgoal_position"][t]
         for key in self.cameras:
             frames = data["videos"][key]
             n = len(frames)

@@ -200,6 +200,11 @@ class PolicyConfig:
     # it an attended image token says what is there but not where. Off in checkpoints saved before it
     # existed and in the shipped one; `train --stage policy --vl-position-embedding` turns it on.
     vl_position_embedding: bool = False
+    # System 1's instruction grounding (nn/instruction_grounding.py): a query from the instruction's
+    # tokens attends over System 2's image tokens, predicts the next gripper event's tool-centre-point
+    # position (an auxiliary loss in training) and adds a goal to the state token. Needs System 2.
+    # Off in checkpoints saved before it existed; `train --stage policy --grounding-weight W` turns it on.
+    instruction_grounding: bool = False
 
 
 @dataclass
@@ -279,6 +284,8 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(
             f"action_names has {len(config.action_names)} names; policy.action_dim is {pol.action_dim}"
         )
+    if pol.instruction_grounding and not config.use_system2:
+        raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -51,6 +51,11 @@ def _rot_z(angle: float) -> torch.Tensor:
     return torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
 
 
+def normalize_position(position: torch.Tensor) -> torch.Tensor:
+    """Positions (..., 3) [m] in the base frame -> the features' position units: (p - centre) / scale."""
+    return (position - torch.tensor(_CENTRE, dtype=position.dtype, device=position.device)) / _SCALE
+
+
 class PandaTcpFeatures(nn.Module):
     """Joint angles (B, >= 7) [rad], the first 7 entries used -> features (B, 9): the tcp position,
     centred on (0.5, 0, 0.2) m and divided by 0.2 m, and the first two columns of its rotation."""
@@ -61,7 +66,6 @@ class PandaTcpFeatures(nn.Module):
         self.register_buffer("joint_origins", origins.float(), persistent=False)  # (7, 4, 4)
         tcp = _transform(_TCP_IN_JOINT7[0], _rot_z(_TCP_IN_JOINT7[1]))
         self.register_buffer("tcp_in_joint7", tcp.float(), persistent=False)
-        self.register_buffer("centre", torch.tensor(_CENTRE), persistent=False)
 
     def pose(self, joints: torch.Tensor) -> torch.Tensor:
         """(B, >= 7) joint angles -> (B, 4, 4) tcp pose in the base frame."""
@@ -87,6 +91,6 @@ class PandaTcpFeatures(nn.Module):
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         X = self.pose(joints)
-        position = (X[:, :3, 3] - self.centre) / _SCALE
+        position = normalize_position(X[:, :3, 3])
         rotation = X[:, :3, :2].transpose(1, 2).reshape(X.shape[0], 6)
         return torch.cat([position, rotation], dim=-1)

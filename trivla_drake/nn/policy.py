@@ -16,6 +16,7 @@ from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
 from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_FEATURE_DIM
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
+from trivla_drake.nn.instruction_grounding import InstructionGrounding
 from trivla_drake.nn.video_former import VideoFormer
 
 
@@ -83,6 +84,13 @@ class FlowMatchingPolicy(nn.Module):
                 nn.Parameter(torch.randn(vl_fixed_positions, dim) * 0.02)
                 if config.vl_position_embedding and vl_fixed_positions > 0 else None
             )
+            self.vl_fixed_positions = vl_fixed_positions
+        self.grounding = None
+        if config.instruction_grounding:
+            if not (self.uses_vl and vl_fixed_positions > 0):
+                raise ValueError("policy.instruction_grounding reads System 2's instruction and image tokens: "
+                                 "it needs System 2")
+            self.grounding = InstructionGrounding(dim, config.num_heads)
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
             # One set of statistics per view and feature element, shared by the T+1 frames.
@@ -115,11 +123,19 @@ class FlowMatchingPolicy(nn.Module):
         views = [standardize(f) for standardize, f in zip(self.dynamics_standardizers, (static, wrist))]
         return self.video_former(views)
 
-    def memory(
-        self, q_vl: torch.Tensor | None, q_vl_mask: torch.Tensor | None, q_p: torch.Tensor | None, batch: int
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Condition tokens for the DiT's cross-attention: [Q_vl; Q_p] at DiT width (B, M, D), mask (B, M)."""
+    def conditions(
+        self,
+        q_s: torch.Tensor,
+        q_vl: torch.Tensor | None,
+        q_vl_mask: torch.Tensor | None,
+        q_p: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
+        configured; the cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M);
+        the grounding's predicted sub-goal (B, 3) in tcp feature units, or None without grounding."""
+        batch = q_s.shape[0]
         parts, masks = [], []
+        subgoal = None
         if self.uses_vl:
             if q_vl is None:
                 raise ValueError("q_vl is required: System 2 is enabled in this model")
@@ -127,10 +143,15 @@ class FlowMatchingPolicy(nn.Module):
             if self.vl_position is not None:
                 fixed = self.vl_position.shape[0]
                 vl = torch.cat([vl[:, :fixed] + self.vl_position.to(vl.dtype), vl[:, fixed:]], dim=1)
-            parts.append(vl)
-            masks.append(
+            vl_mask = (
                 q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
             )
+            if self.grounding is not None:
+                fixed = self.vl_fixed_positions
+                goal, subgoal = self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed])
+                q_s = q_s + goal.to(q_s.dtype)
+            parts.append(vl)
+            masks.append(vl_mask)
         if self.uses_dynamics:
             if q_p is None:
                 raise ValueError("dynamics features are required: System 3 is enabled in this model")
@@ -139,7 +160,7 @@ class FlowMatchingPolicy(nn.Module):
         if not parts:
             parts.append(self.null_memory.unsqueeze(0).expand(batch, -1, -1))
             masks.append(torch.ones(batch, 1, dtype=torch.bool, device=self.null_memory.device))
-        return torch.cat(parts, dim=1), torch.cat(masks, dim=1)
+        return q_s, torch.cat(parts, dim=1), torch.cat(masks, dim=1), subgoal
 
     # ------------------------------------------------------------------ flow matching
 

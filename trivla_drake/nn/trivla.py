@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from trivla_drake.nn.chat_prompt import tokenize_instruction
+from trivla_drake.nn.instruction_grounding import grounding_loss
 from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
@@ -241,9 +242,11 @@ class TriVLA(nn.Module):
         features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
-    def _memory(self, q_vl, q_vl_mask, f_static, f_wrist, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist):
+        """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
+        memory mask, predicted sub-goal or None."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
-        return self.policy.memory(q_vl if self.vision_language is not None else None, q_vl_mask, q_p, batch)
+        return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p)
 
     def sample_actions_batch(
         self,
@@ -260,7 +263,7 @@ class TriVLA(nn.Module):
         """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A)."""
         embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
         check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
-        memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, q_s.shape[0])
+        q_s, memory, mask, _ = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist)
         actions = self.policy.sample(q_s, memory, mask, embodiment_id, generator=generator, num_steps=num_steps)
         return self.normalizer.unnormalize_action(actions)
 
@@ -415,6 +418,7 @@ class TriVLA(nn.Module):
         *,
         generator: torch.Generator | None = None,
         train_systems_2_3: bool = False,
+        grounding_weight: float = 1.0,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 1's flow-matching loss (eq. 5 with velocity regression) on a batch of B samples.
 
@@ -425,6 +429,8 @@ class TriVLA(nn.Module):
         and either raw inputs "static_rgb"/"wrist_rgb" uint8 (B, H, W, 3) + "instruction" list[str], or
         precomputed "q_vl" (B, S, D_llm) + optional "q_vl_mask" (B, S) and "dynamics_static"/
         "dynamics_wrist" (B, T+1, C, H_p, W_p). Systems 2 and 3 run without gradient unless train_systems_2_3.
+        With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py):
+        the loss adds `grounding_weight` x the grounding's sub-goal loss.
         Returns (loss, info)."""
         pol = self.config.policy
         actions = self._batch_tensor(batch, "action")
@@ -469,8 +475,8 @@ class TriVLA(nn.Module):
                         batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
                     )
         q_s = self.policy.encode_state(self._state_input(state), eid)
-        memory, mask = self._memory(q_vl, q_vl_mask, f_static, f_wrist, b)
-        loss, t = self.policy.loss(
+        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist)
+        flow_loss, t = self.policy.loss(
             self.normalizer.normalize_action(actions),
             q_s,
             memory,
@@ -479,7 +485,17 @@ class TriVLA(nn.Module):
             action_mask=action_mask,
             generator=generator,
         )
-        return loss, {"loss": float(loss.detach()), "flow_time_mean": float(t.mean())}
+        info = {"flow_time_mean": float(t.mean())}
+        loss = flow_loss
+        if subgoal is not None:
+            target = self._batch_tensor(batch, "subgoal_position")
+            if tuple(target.shape) != (b, 3) or not torch.isfinite(target).all():
+                raise ValueError(f"batch['subgoal_position'] must be finite ({b}, 3); got {tuple(target.shape)}")
+            aux = grounding_loss(subgoal, target)
+            loss = flow_loss + grounding_weight * aux
+            info.update(flow_loss=float(flow_loss.detach()), grounding_loss=float(aux.detach()))
+        info["loss"] = float(loss.detach())
+        return loss, info
 
     def compute_video_loss(
         self, batch: Mapping[str, Any], *, generator: torch.Generator | None = None

@@ -59,6 +59,7 @@ def config_from_args(args: argparse.Namespace):
         image_token_norm=args.image_token_norm,
         vl_position_embedding=args.vl_position_embedding,
         dense_weight=args.dense_weight,
+        grounding_weight=args.grounding_weight,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -144,6 +145,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--vl-position-embedding", action="store_true",
                         help="policy: give System 1 a learned embedding of System 2's token positions, so it "
                              "knows where in the image a token it reads lies (added when --init has none)")
+    parser.add_argument("--grounding-weight", type=float, default=0.0,
+                        help="policy: give System 1 an instruction grounding (the instruction's tokens query System "
+                             "2's image tokens for the next gripper event's position, an auxiliary loss of this "
+                             "weight; added when --init has none); 0: none")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

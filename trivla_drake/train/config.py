@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from dataclasses import dataclass
 from typing import Any
@@ -132,6 +133,10 @@ class TrainConfig:
     # policy stage: give System 1 an embedding of Q_vl's token positions
     # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
     vl_position_embedding: bool = False
+    # policy stage: weight of System 1's instruction-grounding loss (`PolicyConfig.instruction_grounding`,
+    # predicting the next gripper event's tool-centre-point position from the instruction and System 2's
+    # image tokens); > 0 adds the grounding where the starting model has none. 0: none (the shipped recipe).
+    grounding_weight: float = 0.0
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -187,6 +192,14 @@ class TrainConfig:
                              f"policy stage, not the {self.stage} stage")
         if self.vl_position_embedding and not self.use_system2:
             raise ValueError("vl_position_embedding (--vl-position-embedding) embeds System 2's token positions: "
+                             "it needs System 2 (drop --no-system2)")
+        if not (math.isfinite(self.grounding_weight) and self.grounding_weight >= 0):
+            raise ValueError(f"grounding_weight must be a finite number >= 0; got {self.grounding_weight}")
+        if self.grounding_weight and self.stage != "policy":
+            raise ValueError("grounding_weight (--grounding-weight) weighs a loss of System 1: set it on the policy "
+                             f"stage, not the {self.stage} stage")
+        if self.grounding_weight and not self.use_system2:
+            raise ValueError("grounding_weight (--grounding-weight) grounds the instruction in System 2's tokens: "
                              "it needs System 2 (drop --no-system2)")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")

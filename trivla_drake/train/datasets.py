@@ -307,6 +307,8 @@ class PolicyFeatureDataset:
             "action_is_pad": torch.from_numpy(np.asarray(sample["action_is_pad"], dtype=bool)),
             "action_is_stale": torch.from_numpy(np.asarray(sample["action_is_stale"], dtype=bool)),
         }
+        if "subgoal_position" in sample:
+            item["subgoal_position"] = torch.from_numpy(np.asarray(sample["subgoal_position"], dtype=np.float32))
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
             if self.use_system2:
@@ -339,7 +341,7 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
             q_vl[b, :n] = it["q_vl"].float()
             mask[b, :n] = True
         batch["q_vl"], batch["q_vl_mask"] = q_vl, mask
-    for key in ("dynamics_static", "dynamics_wrist"):
+    for key in ("dynamics_static", "dynamics_wrist", "subgoal_position"):
         if key in items[0]:
             batch[key] = torch.stack([it[key] for it in items]).float()
     return batch

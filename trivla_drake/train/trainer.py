@@ -56,11 +56,13 @@ def apply_ablations(
     image_token_norm: bool = False,
     vl_position_embedding: bool = False,
     dense_classes: int = 0,
+    instruction_grounding: bool = False,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
     it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
-    where it has none and, with `dense_classes` > 0, a fresh block head on System 2's image tokens
+    where it has none, with `dense_classes` > 0, a fresh block head on System 2's image tokens
+    where it has none and, with `instruction_grounding`, a fresh instruction grounding in System 1
     where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
@@ -74,13 +76,16 @@ def apply_ablations(
     norm = cfg.vision_language.image_token_norm or (image_token_norm and use_system2)
     vl_position = use_system2 and (cfg.policy.vl_position_embedding or vl_position_embedding)
     classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
+    grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
-            cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes):
+            cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
+            cfg.policy.instruction_grounding) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
-        policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position),
+        policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
+                                   instruction_grounding=grounding),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
     )
     tokenizers = {}
@@ -131,13 +136,15 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         model = load_checkpoint(config.init)
         where = f"--init checkpoint {config.init}"
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
-                                config.image_token_norm, config.vl_position_embedding, _dense_classes(config))
+                                config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
+                                config.grounding_weight > 0)
     else:
         cfg = make_config(config.preset, init_seed=config.seed,
                           use_system2=config.use_system2, use_system3=config.use_system3)
         return TriVLA(dataclasses.replace(
             cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
-                                            vl_position_embedding=config.vl_position_embedding and config.use_system2),
+                                            vl_position_embedding=config.vl_position_embedding and config.use_system2,
+                                            instruction_grounding=config.grounding_weight > 0),
             vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=config.image_token_norm,
                                                 dense_classes=_dense_classes(config) if config.use_system2 else 0),
         ))
@@ -150,6 +157,19 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
                          f"{config.tcp_features} (--no-tcp-features)")
     return model
+
+
+def check_grounding(reader, grounding_weight: float, where: str) -> None:
+    """A System 1 with instruction grounding trains its sub-goal loss: it needs a positive
+    `grounding_weight` and the dataset's tool-centre-point poses (the labels, data/subgoals.py)."""
+    from trivla_drake.data.samples import TCP_POSE_KEY
+
+    if not grounding_weight > 0:
+        raise ValueError(f"{where} has System 1's instruction grounding: its sub-goal loss needs "
+                         f"grounding_weight (--grounding-weight) > 0; got {grounding_weight}")
+    if TCP_POSE_KEY not in reader.features:
+        raise ValueError(f"grounding_weight (--grounding-weight) trains on sub-goals from {TCP_POSE_KEY!r}, "
+                         f"which dataset {reader.root} does not have")
 
 
 def trainable_module(model: TriVLA, stage: str) -> nn.Module:
@@ -166,17 +186,18 @@ class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
     def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
-                 dense_weight: float = 0.0) -> None:
+                 dense_weight: float = 0.0, grounding_weight: float = 0.0) -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
         self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
+        self.grounding_weight = grounding_weight
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
             return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight)
-        return self.model.compute_loss(batch, generator=self.generator)
+        return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -387,6 +408,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         where = f"checkpoint {resume_from}" if resume_from else (f"--init checkpoint {config.init}" if config.init
                                                                  else f"preset {config.preset!r}")
         check_spaces(reader, model.config, where)
+        if config.stage == "policy" and model.policy.grounding is not None:
+            check_grounding(reader, config.grounding_weight, where)
         model.set_normalization(normalization_from_stats(reader, model.config))
 
     torch.manual_seed(config.seed)
@@ -425,7 +448,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         _set_rng_state(rng[env.rank] if env.rank < len(rng) else rng[0], generator)
         if env.rank >= len(rng):
             generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
-    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight)
+    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
+                            config.grounding_weight)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(

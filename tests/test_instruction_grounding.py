@@ -1,0 +1,169 @@
+"""System 1's instruction grounding: sub-goal labels from demonstrations, a module that learns which
+image token the instruction names, its place in the model and loss, and the errors it raises."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from trivla_drake.data.samples import TrainingSamples
+from trivla_drake.data.subgoals import next_gripper_event_positions
+from trivla_drake.nn.benchmark import example_observation
+from trivla_drake.nn.config import make_config
+from trivla_drake.nn.instruction_grounding import InstructionGrounding, grounding_loss
+from trivla_drake.nn.panda_tcp import normalize_position
+from trivla_drake.nn.trivla import TriVLA
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+def test_subgoal_is_the_position_at_the_next_gripper_change_then_the_last_frame():
+    gripper = np.array([-1, -1, -1, 1, 1, -1, -1], dtype=float)  # closes at frame 3, opens at frame 5
+    tcp = np.arange(21, dtype=float).reshape(7, 3)
+    labels = next_gripper_event_positions(gripper, tcp)
+    assert labels.dtype == np.float32 and labels.shape == (7, 3)
+    expected_frames = [3, 3, 3, 5, 5, 6, 6]
+    np.testing.assert_array_equal(labels, tcp[expected_frames])
+    # no change at all: every frame's sub-goal is where the episode ends (a push)
+    np.testing.assert_array_equal(next_gripper_event_positions(np.ones(4), tcp[:4]), tcp[[3, 3, 3, 3]])
+    assert next_gripper_event_positions(np.zeros(0), np.zeros((0, 3))).shape == (0, 3)
+
+
+@pytest.mark.parametrize(
+    "gripper, tcp, message",
+    [
+        (np.ones((3, 1)), np.zeros((3, 3)), "gripper must be"),
+        (np.ones(3), np.zeros((4, 3)), "tcp_position"),
+        (np.array([1.0, np.nan]), np.zeros((2, 3)), "finite"),
+    ],
+)
+def test_subgoal_labels_reject_bad_input(gripper, tcp, message):
+    with pytest.raises(ValueError, match=message):
+        next_gripper_event_positions(gripper, tcp)
+
+
+def test_training_samples_carry_subgoals_when_the_dataset_has_tcp_poses(tmp_path):
+    with_pose = TrainingSamples(write_synthetic_dataset(tmp_path / "a", episodes=1, length=10, tcp_pose=True),
+                                history=1, future_frames=0, cameras=[])
+    # the synthetic gripper closes for the second half: frames 0..4 aim at frame 5, the rest at the end
+    frames = [with_pose.reader.episode_frames(0)["observation.tcp_pose"][k, :3] for k in (5, 9)]
+    np.testing.assert_allclose(with_pose[2]["subgoal_position"], frames[0])
+    np.testing.assert_allclose(with_pose[7]["subgoal_position"], frames[1])
+    without = TrainingSamples(write_synthetic_dataset(tmp_path / "b", episodes=1, length=10),
+                              history=1, future_frames=0, cameras=[])
+    assert "subgoal_position" not in without[2]
+
+
+def _scenes(n, tokens=16, dim=32, colours=3, seed=0):
+    """Each colour k shows in one random image token as channel k (the token's position on a 4x4 grid
+    is its only location cue, given by a fixed position embedding); the instruction names one colour
+    by channel `colours + k` of its tokens; the target is that colour's grid cell."""
+    gen = torch.Generator().manual_seed(seed)
+    position = torch.randn(tokens, dim, generator=gen)
+    images = 0.1 * torch.randn(n, tokens, dim, generator=gen) + position
+    instruction = 0.1 * torch.randn(n, 4, dim, generator=gen)
+    named = torch.randint(0, colours, (n,), generator=gen)
+    target = torch.zeros(n, 3)
+    for i in range(n):
+        cells = torch.randperm(tokens, generator=gen)[:colours]
+        images[i, cells, torch.arange(colours)] += 3.0
+        instruction[i, 1, colours + named[i]] += 3.0
+        row, col = divmod(int(cells[named[i]]), 4)
+        target[i, :2] = torch.tensor([row, col], dtype=torch.float32) / 4
+    return instruction, images, target
+
+
+def test_grounding_learns_which_token_the_instruction_names():
+    """Two hops in one: the instruction picks a colour, the attention finds that colour's token, the
+    head reads its position. After training, held-out scenes are located far better than by the mean."""
+    torch.manual_seed(0)
+    instruction, images, target = _scenes(600)
+    mask = torch.ones(instruction.shape[:2], dtype=torch.bool)
+    grounding = InstructionGrounding(32, num_heads=4)
+    optimizer = torch.optim.Adam(grounding.parameters(), lr=3e-3)
+    for step in range(400):
+        batch = torch.randint(0, 500, (64,))
+        _, predicted = grounding(instruction[batch], mask[batch], images[batch])
+        loss = torch.nn.functional.mse_loss(predicted, target[batch])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    with torch.no_grad():
+        goal, predicted = grounding(instruction[500:], mask[500:], images[500:])
+    error = (predicted - target[500:])[:, :2].norm(dim=-1).mean()
+    baseline = (target[500:] - target[:500].mean(0))[:, :2].norm(dim=-1).mean()
+    assert goal.shape == (100, 32)
+    assert error < 0.35 * baseline, (float(error), float(baseline))
+
+
+def test_grounding_ignores_masked_instruction_tokens_and_starts_with_a_zero_goal():
+    instruction, images, _ = _scenes(4)
+    grounding = InstructionGrounding(32, num_heads=2)
+    mask = torch.tensor([[True, True, False, False]]).expand(4, -1)
+    junk = instruction.clone()
+    junk[:, 2:] = 100.0
+    goal, a = grounding(instruction, mask, images)
+    _, b = grounding(junk, mask, images)
+    torch.testing.assert_close(a, b)
+    assert torch.equal(goal, torch.zeros_like(goal))  # zero-initialised: a new grounding changes nothing yet
+
+
+def test_grounding_loss_is_in_tcp_feature_units():
+    position = torch.tensor([[0.6, -0.1, 0.05]])
+    predicted = normalize_position(position)
+    assert float(grounding_loss(predicted, position)) == 0.0
+    assert float(grounding_loss(predicted + 1.0, position)) > 0.9
+
+
+def _grounded_model():
+    config = make_config("tiny")
+    return TriVLA(dataclasses.replace(config, policy=dataclasses.replace(config.policy, instruction_grounding=True)))
+
+
+def _batch(model):
+    obs = example_observation()
+    batch = {
+        "static_rgb": np.stack([obs["static_rgb"]] * 2), "wrist_rgb": np.stack([obs["wrist_rgb"]] * 2),
+        "instruction": ["lift the red block", "open the drawer"],
+        "state": torch.zeros(2, model.config.policy.state_dim),
+        "action": torch.zeros(2, model.config.policy.action_horizon, model.config.policy.action_dim),
+        "subgoal_position": torch.tensor([[0.5, 0.1, 0.03], [0.4, -0.2, 0.2]]),
+    }
+    return batch
+
+
+def test_compute_loss_adds_the_weighted_grounding_loss_and_trains_the_grounding():
+    model = _grounded_model().eval()
+    batch = _batch(model)
+    loss, info = model.compute_loss(batch, generator=torch.Generator().manual_seed(0), grounding_weight=2.0)
+    assert {"flow_loss", "grounding_loss"} <= set(info)
+    assert abs(info["loss"] - info["flow_loss"] - 2.0 * info["grounding_loss"]) < 1e-5
+    loss.backward()
+    assert model.policy.grounding.query[1].weight.grad.abs().sum() > 0
+    assert model.policy.grounding.subgoal_head[2].weight.grad.abs().sum() > 0
+    # inference runs the grounding too: a chunk comes out for one observation
+    chunk = model.predict_action_chunk(example_observation(), seed=0)
+    assert chunk.shape == (model.config.policy.action_horizon, model.config.policy.action_dim)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda b: b.pop("subgoal_position"), "subgoal_position"),
+        (lambda b: b.update(subgoal_position=torch.zeros(2, 2)), r"subgoal_position'\] must be finite \(2, 3\)"),
+        (lambda b: b.update(subgoal_position=torch.full((2, 3), float("nan"))), "subgoal_position"),
+    ],
+)
+def test_compute_loss_names_a_missing_or_bad_subgoal(change, message):
+    model = _grounded_model().eval()
+    batch = _batch(model)
+    change(batch)
+    with pytest.raises(ValueError, match=message):
+        model.compute_loss(batch, generator=torch.Generator().manual_seed(0))
+
+
+def test_grounding_needs_system2():
+    config = make_config("tiny")
+    with pytest.raises(ValueError, match="policy.instruction_grounding.*use_system2"):
+        dataclasses.replace(config, use_system2=False,
+                            policy=dataclasses.replace(config.policy, instruction_grounding=True))

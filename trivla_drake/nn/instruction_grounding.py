@@ -1,0 +1,57 @@
+"""System 1's instruction grounding: which place in the images the instruction's words name.
+
+System 1's action tokens cross-attend to Q_vl, but they are made from noise, the flow time and the
+state: they do not know the instruction, so their first attention cannot look for "the red block".
+Finding it takes two hops (read the colour word, then find that colour in the images), and the
+flow-matching loss alone did not teach them (results/system2_positions). This module makes it one
+hop: a query built from the instruction's tokens attends over the position-embedded image tokens.
+The read-out predicts the next gripper event's tool-centre-point position (data/subgoals.py), a
+dense auxiliary loss, and enters the DiT as a goal added to the state token Q_s.
+
+Positions are in panda_tcp's feature units, (p - centre) / scale, the same as the state token's
+tool-centre-point features, so the DiT can compare them.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from trivla_drake.nn.attention import MultiHeadAttention
+from trivla_drake.nn.panda_tcp import normalize_position
+
+
+class InstructionGrounding(nn.Module):
+    """Instruction tokens (B, S_t, D) + image tokens (B, S_i, D) -> goal (B, D), sub-goal (B, 3)."""
+
+    def __init__(self, dim: int, num_heads: int) -> None:
+        super().__init__()
+        self.query = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, dim))
+        self.attention = MultiHeadAttention(dim, num_heads)
+        self.norm = nn.LayerNorm(dim)
+        # The head reads the query too: the sub-goal is where the named object is, shifted by what the
+        # task does with it (a push ends beside the block, a lift above it).
+        self.subgoal_head = nn.Sequential(nn.Linear(2 * dim, dim), nn.SiLU(), nn.Linear(dim, 3))
+        self.goal = nn.Sequential(nn.Linear(dim + 3, dim), nn.SiLU(), nn.Linear(dim, dim))
+        # The goal starts at zero, so a System 1 given this module starts as the one without it.
+        nn.init.zeros_(self.goal[2].weight)
+        nn.init.zeros_(self.goal[2].bias)
+
+    def forward(
+        self, instruction: torch.Tensor, instruction_mask: torch.Tensor, image_tokens: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Masked mean of the instruction tokens -> query; one attention over the image tokens ->
+        read-out; returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in feature units."""
+        weights = instruction_mask.to(instruction.dtype).unsqueeze(-1)
+        pooled = (instruction * weights).sum(1) / weights.sum(1).clamp(min=1.0)
+        query = self.query(pooled)
+        read = self.norm(self.attention(query.unsqueeze(1), image_tokens)[:, 0])
+        subgoal = self.subgoal_head(torch.cat([read, query], dim=-1))
+        return self.goal(torch.cat([read, subgoal], dim=-1)), subgoal
+
+
+def grounding_loss(predicted: torch.Tensor, subgoal_position: torch.Tensor) -> torch.Tensor:
+    """Smooth-L1 loss of predicted sub-goals (B, 3) in feature units against positions (B, 3) [m]."""
+    target = normalize_position(subgoal_position).to(predicted.dtype)
+    return F.smooth_l1_loss(predicted, target, beta=0.05)
