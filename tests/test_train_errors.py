@@ -95,10 +95,12 @@ def test_parser_maps_every_flag_to_the_config():
                               "--init", "i", "--steps", "7", "--batch-size", "3", "--lr", "0.5",
                               "--checkpoint-every", "2", "--resume", "--seed", "9", "--workers", "1",
                               "--fraction", "0.1", "--no-system2", "--no-system3", "--no-tcp-features",
-                              "--vl-position-embedding", "--dense-weight", "0.5", "--grounding-weight", "0.25"])
+                              "--vl-position-embedding", "--dense-weight", "0.5", "--grounding-weight", "0.25",
+                              "--grounding-lr-scale", "2"])
     config = config_from_args(args)
     assert (config.stage, config.data, config.out, config.preset, config.init) == ("policy", "d", "o", "cpu", "i")
     assert (config.steps, config.batch_size, config.lr, config.checkpoint_every) == (7, 3, 0.5, 2)
     assert (config.resume, config.seed, config.workers, config.fraction) == (True, 9, 1, 0.1)
     assert not config.use_system2 and not config.use_system3 and not config.tcp_features
     assert config.vl_position_embedding and config.dense_weight == 0.5 and config.grounding_weight == 0.25
+    assert config.grounding_lr_scale == 2.0

@@ -274,6 +274,10 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     assert any(not torch.equal(v, fresh[k]) for k, v in after.policy.grounding.state_dict().items())
     logged = [json.loads(line) for line in open(tmp_path / "g" / "log.jsonl")]
     assert all({"flow_loss", "grounding_loss"} <= set(row) for row in logged)
+    groups = torch.load(tmp_path / "g" / "final" / "training_state.pt", weights_only=False)["optimizer"]["param_groups"]
+    assert sorted({g["lr_scale"] for g in groups}) == [1.0, 3.0]  # the grounding learns 3x faster by default
+    base = next(g["lr"] for g in groups if g["lr_scale"] == 1.0)
+    assert all(g["lr"] == pytest.approx(base * g["lr_scale"]) for g in groups)
     grounded = summary["final_checkpoint"]
     with pytest.raises(ValueError, match="grounding_weight.*> 0"):
         train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), init=grounded, steps=1,
@@ -287,6 +291,8 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     with pytest.raises(ValueError, match="grounding_weight.*needs System 2"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "n"), use_system2=False,
                     grounding_weight=1.0).resolved().validate()
+    with pytest.raises(ValueError, match="grounding_lr_scale must be a finite number > 0"):
+        TrainConfig(stage="policy", data=data, out=str(tmp_path / "s"), grounding_lr_scale=0.0).resolved().validate()
     with pytest.raises(ValueError, match="grounding_weight must be a finite number >= 0"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
 

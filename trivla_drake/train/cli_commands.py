@@ -60,6 +60,7 @@ def config_from_args(args: argparse.Namespace):
         vl_position_embedding=args.vl_position_embedding,
         dense_weight=args.dense_weight,
         grounding_weight=args.grounding_weight,
+        grounding_lr_scale=args.grounding_lr_scale,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -149,6 +150,8 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy: give System 1 an instruction grounding (the instruction's tokens query System "
                              "2's image tokens for the next gripper event's position, an auxiliary loss of this "
                              "weight; added when --init has none); 0: none")
+    parser.add_argument("--grounding-lr-scale", type=float, default=3.0,
+                        help="policy: the instruction grounding's learning rate as a multiple of --lr (default 3)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

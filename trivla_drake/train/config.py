@@ -137,6 +137,9 @@ class TrainConfig:
     # predicting the next gripper event's tool-centre-point position from the instruction and System 2's
     # image tokens); > 0 adds the grounding where the starting model has none. 0: none (the shipped recipe).
     grounding_weight: float = 0.0
+    # policy stage: the grounding's learning rate is this times the run's (its attention starts from
+    # nothing and has to become sharp; System 1's other weights keep the run's rate).
+    grounding_lr_scale: float = 3.0
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -195,6 +198,8 @@ class TrainConfig:
                              "it needs System 2 (drop --no-system2)")
         if not (math.isfinite(self.grounding_weight) and self.grounding_weight >= 0):
             raise ValueError(f"grounding_weight must be a finite number >= 0; got {self.grounding_weight}")
+        if not (math.isfinite(self.grounding_lr_scale) and self.grounding_lr_scale > 0):
+            raise ValueError(f"grounding_lr_scale must be a finite number > 0; got {self.grounding_lr_scale}")
         if self.grounding_weight and self.stage != "policy":
             raise ValueError("grounding_weight (--grounding-weight) weighs a loss of System 1: set it on the policy "
                              f"stage, not the {self.stage} stage")

@@ -272,12 +272,18 @@ def learning_rate(config: TrainConfig, step: int) -> float:
 
 
 def _optimizer(module: nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
-    decay, no_decay = [], []
-    for _, p in module.named_parameters():
+    """AdamW; matrices decay, vectors do not; System 1's instruction grounding learns at
+    `grounding_lr_scale` times the run's learning rate (each group's "lr_scale")."""
+    groups: dict[tuple[bool, bool], list[nn.Parameter]] = {}
+    for name, p in module.named_parameters():
         if p.requires_grad:
-            (decay if p.dim() >= 2 else no_decay).append(p)
-    groups = [{"params": decay, "weight_decay": config.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-    return torch.optim.AdamW([g for g in groups if g["params"]], lr=config.lr, betas=(config.beta1, config.beta2))
+            groups.setdefault((p.dim() >= 2, name.startswith("grounding.")), []).append(p)
+    return torch.optim.AdamW(
+        [{"params": params, "weight_decay": config.weight_decay if decay else 0.0,
+          "lr_scale": config.grounding_lr_scale if grounding else 1.0}
+         for (decay, grounding), params in sorted(groups.items(), key=lambda kv: (not kv[0][0], kv[0][1]))],
+        lr=config.lr, betas=(config.beta1, config.beta2),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -485,7 +491,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         for batch in loader:
             lr = learning_rate(config, step)
             for group in optimizer.param_groups:
-                group["lr"] = lr
+                group["lr"] = lr * group.get("lr_scale", 1.0)
             with torch.autocast("cuda", dtype=torch.bfloat16, enabled=autocast):
                 loss, info = runner(batch)
             optimizer.zero_grad(set_to_none=True)
