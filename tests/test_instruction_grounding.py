@@ -54,10 +54,16 @@ def test_training_samples_carry_subgoals_when_the_dataset_has_tcp_poses(tmp_path
     assert "subgoal_position" not in without[2]
 
 
-def _scenes(n, tokens=16, dim=32, colours=3, seed=0):
+# Colour names spelt with two letters, as System 2's byte tokens spell words: 0 = "ab", 1 = "ba",
+# 2 = "bb". The names of colours 0 and 1 hold the same letters; only their order tells them apart.
+_SPELLING = ((0, 1), (1, 0), (1, 1))
+
+
+def _scenes(n, tokens=16, dim=32, colours=3, seed=0, spelt=False):
     """Each colour k shows in one random image token as channel k (the token's position on a 4x4 grid
     is its only location cue, given by a fixed position embedding); the instruction names one colour
-    by channel `colours + k` of its tokens; the target is that colour's grid cell."""
+    by channel `colours + k` of one token or, `spelt`, by its two letters (channels `colours` and
+    `colours + 1`) in tokens 1 and 2; the target is that colour's grid cell."""
     gen = torch.Generator().manual_seed(seed)
     position = torch.randn(tokens, dim, generator=gen)
     images = 0.1 * torch.randn(n, tokens, dim, generator=gen) + position
@@ -67,17 +73,23 @@ def _scenes(n, tokens=16, dim=32, colours=3, seed=0):
     for i in range(n):
         cells = torch.randperm(tokens, generator=gen)[:colours]
         images[i, cells, torch.arange(colours)] += 3.0
-        instruction[i, 1, colours + named[i]] += 3.0
+        if spelt:
+            for token, letter in enumerate(_SPELLING[int(named[i])], start=1):
+                instruction[i, token, colours + letter] += 3.0
+        else:
+            instruction[i, 1, colours + named[i]] += 3.0
         row, col = divmod(int(cells[named[i]]), 4)
         target[i, :2] = torch.tensor([row, col], dtype=torch.float32) / 4
     return instruction, images, target
 
 
-def test_grounding_learns_which_token_the_instruction_names():
+@pytest.mark.parametrize("spelt", [False, True])
+def test_grounding_learns_which_token_the_instruction_names(spelt):
     """Two hops in one: the instruction picks a colour, the attention finds that colour's token, the
-    head reads its position. After training, held-out scenes are located far better than by the mean."""
+    head reads its position. After training, held-out scenes are located far better than by the mean,
+    also when a colour's name is spelt over two tokens whose order matters (byte tokens)."""
     torch.manual_seed(0)
-    instruction, images, target = _scenes(600)
+    instruction, images, target = _scenes(600, spelt=spelt)
     mask = torch.ones(instruction.shape[:2], dtype=torch.bool)
     grounding = InstructionGrounding(32, num_heads=4)
     optimizer = torch.optim.Adam(grounding.parameters(), lr=3e-3)

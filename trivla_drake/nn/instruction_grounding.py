@@ -4,7 +4,7 @@ System 1's action tokens cross-attend to Q_vl, but they are made from noise, the
 state: they do not know the instruction, so their first attention cannot look for "the red block".
 Finding it takes two hops (read the colour word, then find that colour in the images), and the
 flow-matching loss alone did not teach them (results/system2_positions). This module makes it one
-hop: a query built from the instruction's tokens attends over the position-embedded image tokens.
+hop: the instruction's tokens attend over the position-embedded image tokens.
 The read-out predicts the next gripper event's tool-centre-point position (data/subgoals.py), a
 dense auxiliary loss, and enters the DiT as a goal added to the state token Q_s.
 
@@ -23,15 +23,24 @@ from trivla_drake.nn.panda_tcp import normalize_position
 
 
 class InstructionGrounding(nn.Module):
-    """Instruction tokens (B, S_t, D) + image tokens (B, S_i, D) -> goal (B, D), sub-goal (B, 3)."""
+    """Instruction tokens (B, S_t, D) + image tokens (B, S_i, D) -> goal (B, D), sub-goal (B, 3).
+
+    Every instruction token looks: its query attends over the image tokens ("red" finds the red
+    block). A learned score per token then picks whose look counts (the colour word's, not "the").
+    A mean of the instruction's tokens as one query would dilute the one word that names the object
+    among the others (it did: its sub-goal hardly changed with the colour word)."""
 
     def __init__(self, dim: int, num_heads: int) -> None:
         super().__init__()
+        # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
+        # over 5 neighbouring tokens (the longest colour word) composes them.
+        self.compose = nn.Conv1d(dim, dim, kernel_size=5, padding=2)
         self.query = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, dim))
+        self.score = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 1))
         self.attention = MultiHeadAttention(dim, num_heads)
         self.norm = nn.LayerNorm(dim)
-        # The head reads the query too: the sub-goal is where the named object is, shifted by what the
-        # task does with it (a push ends beside the block, a lift above it).
+        # The head reads the chosen query too: the sub-goal is where the named object is, shifted by
+        # what the task does with it (a push ends beside the block, a lift above it).
         self.subgoal_head = nn.Sequential(nn.Linear(2 * dim, dim), nn.SiLU(), nn.Linear(dim, 3))
         self.goal = nn.Sequential(nn.Linear(dim + 3, dim), nn.SiLU(), nn.Linear(dim, dim))
         # The goal starts at zero, so a System 1 given this module starts as the one without it.
@@ -41,13 +50,17 @@ class InstructionGrounding(nn.Module):
     def forward(
         self, instruction: torch.Tensor, instruction_mask: torch.Tensor, image_tokens: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Masked mean of the instruction tokens -> query; one attention over the image tokens ->
-        read-out; returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in feature units."""
-        weights = instruction_mask.to(instruction.dtype).unsqueeze(-1)
-        pooled = (instruction * weights).sum(1) / weights.sum(1).clamp(min=1.0)
-        query = self.query(pooled)
-        read = self.norm(self.attention(query.unsqueeze(1), image_tokens)[:, 0])
-        subgoal = self.subgoal_head(torch.cat([read, query], dim=-1))
+        """Each instruction token's query attends over the image tokens; their read-outs and queries
+        are averaged with softmax weights of the tokens' scores (masked tokens get none). Returns the
+        goal (B, D) for the DiT and the predicted sub-goal (B, 3) in feature units."""
+        kept = instruction * instruction_mask.unsqueeze(-1).to(instruction.dtype)
+        instruction = instruction + self.compose(kept.transpose(1, 2)).transpose(1, 2)
+        queries = self.query(instruction)
+        reads = self.attention(queries, image_tokens)
+        scores = self.score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
+        weights = torch.softmax(scores, dim=-1).nan_to_num(0.0).unsqueeze(-1)  # an all-masked row: zeros
+        read = self.norm((weights * reads).sum(1))
+        subgoal = self.subgoal_head(torch.cat([read, (weights * queries).sum(1)], dim=-1))
         return self.goal(torch.cat([read, subgoal], dim=-1)), subgoal
 
 
