@@ -41,6 +41,10 @@ def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
     return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
+def _rows(run_dir) -> list[dict]:
+    return [json.loads(line) for line in open(run_dir / "log.jsonl")]
+
+
 def _losses(run_dir) -> list[float]:
     return [json.loads(line)["loss"] for line in open(run_dir / "log.jsonl")]
 
@@ -274,6 +278,10 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     assert any(not torch.equal(v, fresh[k]) for k, v in after.policy.grounding.state_dict().items())
     logged = [json.loads(line) for line in open(tmp_path / "g" / "log.jsonl")]
     assert all({"flow_loss", "grounding_loss"} <= set(row) for row in logged)
+    from trivla_drake.train.loss_plot import loss_components
+
+    assert loss_components(logged) == ["flow_loss", "grounding_loss"]  # drawn in OUT/loss.png too
+    assert loss_components(_rows(runs["root"] / "policy")) == []
     groups = torch.load(tmp_path / "g" / "final" / "training_state.pt", weights_only=False)["optimizer"]["param_groups"]
     assert sorted({g["lr_scale"] for g in groups}) == [1.0, 3.0]  # the grounding learns 3x faster by default
     base = next(g["lr"] for g in groups if g["lr_scale"] == 1.0)

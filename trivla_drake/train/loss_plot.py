@@ -1,5 +1,6 @@
 """A run's training curve as a PNG: OUT/log.jsonl (loss and its moving average per logged step, the
-learning rate) -> OUT/loss.png, rewritten at the end of every run (also a resumed one)."""
+parts of a loss made of several, such as the flow-matching and grounding losses, and the learning
+rate) -> OUT/loss.png, rewritten at the end of every run (also a resumed one)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,11 @@ def read_log(log_path: str | Path) -> list[dict]:
     return rows
 
 
+def loss_components(rows: list[dict]) -> list[str]:
+    """The logged parts of a loss made of several: every "*_loss" key of the log's rows."""
+    return sorted({key for row in rows for key in row if key.endswith("_loss")})
+
+
 def plot_training_curve(log_path: str | Path, out_path: str | Path, *, title: str = "") -> Path | None:
     """Writes loss (log scale) and learning rate against step; None when the log has no rows."""
     import matplotlib
@@ -32,6 +38,9 @@ def plot_training_curve(log_path: str | Path, out_path: str | Path, *, title: st
     fig, (ax_loss, ax_lr) = plt.subplots(2, 1, figsize=(7, 5), sharex=True, height_ratios=(3, 1))
     ax_loss.plot(steps, [r["loss"] for r in rows], color="0.75", lw=0.8, label="loss (logged step)")
     ax_loss.plot(steps, [r["loss_ema"] for r in rows], color="C0", lw=1.6, label="moving average")
+    for i, key in enumerate(loss_components(rows)):
+        logged = [(r["step"], r[key]) for r in rows if key in r]
+        ax_loss.plot(*zip(*logged), color=f"C{i + 2}", lw=0.8, alpha=0.8, label=key.replace("_", " "))
     ax_loss.set_yscale("log")
     ax_loss.set_ylabel("training loss")
     ax_loss.legend(loc="upper right")
