@@ -179,3 +179,34 @@ def test_grounding_needs_system2():
     with pytest.raises(ValueError, match="policy.instruction_grounding.*use_system2"):
         dataclasses.replace(config, use_system2=False,
                             policy=dataclasses.replace(config.policy, instruction_grounding=True))
+
+
+def test_grounding_check_asks_every_colour_in_unseen_scenes_and_names_bad_input(tmp_path, capsys):
+    """The check runs the real scenes and the model's own sub-goals: 3 queries per scene, a hit count
+    it cannot exceed, chance 1/3; a model without a grounding and a zero scene count are refused."""
+    from trivla_drake.cli import main
+    from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
+    from trivla_drake.nn.checkpoint import save_checkpoint
+
+    model = _grounded_model().eval()
+    subgoal = model.predict_subgoal(example_observation()["static_rgb"], example_observation()["wrist_rgb"],
+                                    "pick up the red block")
+    assert subgoal.shape == (3,) and np.isfinite(subgoal).all()
+    check = grounding_check(model, scenes=1)
+    assert (check.scenes, check.queries, check.chance) == (1, 3, pytest.approx(1 / 3))
+    assert 0 <= check.hits <= 3 and 0 <= check.median_error_m < 1.0
+    assert "1 unseen lift_block scenes" in format_grounding_check(check)
+    with pytest.raises(ValueError, match="scenes must be >= 1"):
+        grounding_check(model, scenes=0)
+    plain = TriVLA(make_config("tiny")).eval()
+    with pytest.raises(ValueError, match="no instruction grounding.*--grounding-weight"):
+        grounding_check(plain, scenes=1)
+    with pytest.raises(ValueError, match="no instruction grounding"):
+        plain.predict_subgoal(example_observation()["static_rgb"], example_observation()["wrist_rgb"], "lift it")
+    save_checkpoint(model, tmp_path / "grounded")
+    assert main(["probe", "--checkpoint", str(tmp_path / "grounded"), "--grounding-scenes", "1", "--json"]) == 0
+    assert '"queries": 3' in capsys.readouterr().out
+    assert main(["probe", "--checkpoint", str(tmp_path / "grounded")]) == 2
+    assert "--data is required" in capsys.readouterr().err
+    assert main(["probe", "--checkpoint", str(tmp_path / "grounded"), "--grounding-scenes", "-1"]) == 2
+    assert "--grounding-scenes must be >= 0" in capsys.readouterr().err

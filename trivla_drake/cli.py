@@ -158,6 +158,17 @@ def _cmd_probe(args) -> int:
     from trivla_drake.eval.feature_probe import format_probe_table, probe_block_positions
     from trivla_drake.eval.model_loading import load_model
 
+    if args.grounding_scenes < 0:
+        raise ValueError(f"--grounding-scenes must be >= 0, got {args.grounding_scenes}")
+    if args.grounding_scenes:
+        from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
+
+        _set_torch_threads(args.threads)
+        check = grounding_check(load_model(args.checkpoint), scenes=args.grounding_scenes)
+        print(json.dumps(check.to_dict()) if args.json else format_grounding_check(check))
+        return 0
+    if args.data is None:
+        raise ValueError("--data is required: the dataset whose features the probes read (or pass --grounding-scenes)")
     if args.episodes is not None and args.episodes < 10:
         raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
     if args.attention_steps < 0:
@@ -248,13 +259,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     probe = commands.add_parser("probe", help="linear probes: how well System 2's and System 3's features "
                                 "locate the blocks (held-out R^2), with raw pixels as reference")
-    probe.add_argument("--data", required=True, help="dataset written by `collect`")
+    probe.add_argument("--data", default=None, help="dataset written by `collect` (required unless --grounding-scenes)")
     probe.add_argument("--checkpoint", default=None, help="TriVLA checkpoint (default: models/trivla_cpu)")
     probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
     probe.add_argument("--feature-noise", choices=("fixed", "random"), default=None,
                        help="System 3's noise latents for this probe (default: the checkpoint's setting)")
     probe.add_argument("--attention-steps", type=int, default=1500,
                        help="Adam steps of the attention read-outs of System 2's image tokens (0: none)")
+    probe.add_argument("--grounding-scenes", type=int, default=0,
+                       help="instead: check System 1's instruction grounding on N unseen lift_block scenes "
+                            "(is its sub-goal nearest the block each colour word names?)")
     probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     probe.set_defaults(run=_cmd_probe)

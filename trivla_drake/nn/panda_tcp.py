@@ -56,6 +56,11 @@ def normalize_position(position: torch.Tensor) -> torch.Tensor:
     return (position - torch.tensor(_CENTRE, dtype=position.dtype, device=position.device)) / _SCALE
 
 
+def denormalize_position(features: torch.Tensor) -> torch.Tensor:
+    """The inverse of `normalize_position`: feature units (..., 3) -> positions [m]."""
+    return features * _SCALE + torch.tensor(_CENTRE, dtype=features.dtype, device=features.device)
+
+
 class PandaTcpFeatures(nn.Module):
     """Joint angles (B, >= 7) [rad], the first 7 entries used -> features (B, 9): the tcp position,
     centred on (0.5, 0, 0.2) m and divided by 0.2 m, and the first two columns of its rotation."""

@@ -137,18 +137,9 @@ class FlowMatchingPolicy(nn.Module):
         parts, masks = [], []
         subgoal = None
         if self.uses_vl:
-            if q_vl is None:
-                raise ValueError("q_vl is required: System 2 is enabled in this model")
-            vl = self.vl_proj(self.vl_norm(self.vl_standardizer(q_vl))) + self.source_embed[0]
-            if self.vl_position is not None:
-                fixed = self.vl_position.shape[0]
-                vl = torch.cat([vl[:, :fixed] + self.vl_position.to(vl.dtype), vl[:, fixed:]], dim=1)
-            vl_mask = (
-                q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
-            )
+            vl, vl_mask = self._vl_tokens(q_vl, q_vl_mask)
             if self.grounding is not None:
-                fixed = self.vl_fixed_positions
-                goal, subgoal = self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed])
+                goal, subgoal = self._ground(vl, vl_mask)
                 q_s = q_s + goal.to(q_s.dtype)
             parts.append(vl)
             masks.append(vl_mask)
@@ -161,6 +152,27 @@ class FlowMatchingPolicy(nn.Module):
             parts.append(self.null_memory.unsqueeze(0).expand(batch, -1, -1))
             masks.append(torch.ones(batch, 1, dtype=torch.bool, device=self.null_memory.device))
         return q_s, torch.cat(parts, dim=1), torch.cat(masks, dim=1), subgoal
+
+    def _vl_tokens(self, q_vl: torch.Tensor | None, q_vl_mask: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Q_vl (B, S, D_llm) -> standardised tokens at DiT width with their positions (B, S, D), mask (B, S)."""
+        if q_vl is None:
+            raise ValueError("q_vl is required: System 2 is enabled in this model")
+        vl = self.vl_proj(self.vl_norm(self.vl_standardizer(q_vl))) + self.source_embed[0]
+        if self.vl_position is not None:
+            fixed = self.vl_position.shape[0]
+            vl = torch.cat([vl[:, :fixed] + self.vl_position.to(vl.dtype), vl[:, fixed:]], dim=1)
+        mask = q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
+        return vl, mask
+
+    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        fixed = self.vl_fixed_positions
+        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed])
+
+    def predict_subgoal(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None) -> torch.Tensor:
+        """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl alone."""
+        if self.grounding is None:
+            raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
+        return self._ground(*self._vl_tokens(q_vl, q_vl_mask))[1]
 
     # ------------------------------------------------------------------ flow matching
 

@@ -21,7 +21,7 @@ from trivla_drake.nn.instruction_grounding import grounding_loss
 from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
-from trivla_drake.nn.panda_tcp import PandaTcpFeatures
+from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
@@ -286,6 +286,16 @@ class TriVLA(nn.Module):
             torch.from_numpy(static)[None], torch.from_numpy(wrist)[None], [instruction]
         )
         return q_vl[0].float().cpu().numpy(), q_s
+
+    @torch.inference_mode()
+    def predict_subgoal(self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str) -> np.ndarray:
+        """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
+        tool-centre-point position [m] in the arm's base frame (ValueError without a grounding)."""
+        if self.policy.grounding is None:
+            raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
+        q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, np.zeros(self.config.policy.state_dim))
+        subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None])
+        return denormalize_position(subgoal[0].double().cpu()).numpy()
 
     @torch.inference_mode()
     def encode_state(self, state: np.ndarray, embodiment_id: int = 0) -> np.ndarray:
