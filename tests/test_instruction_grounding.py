@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from trivla_drake.data.samples import TrainingSamples
-from trivla_drake.data.subgoals import next_gripper_event_positions
+from trivla_drake.data.subgoals import approach_frames, next_gripper_event_positions
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding, grounding_loss
@@ -27,6 +27,23 @@ def test_subgoal_is_the_position_at_the_next_gripper_change_then_the_last_frame(
     # no change at all: every frame's sub-goal is where the episode ends (a push)
     np.testing.assert_array_equal(next_gripper_event_positions(np.ones(4), tcp[:4]), tcp[[3, 3, 3, 3]])
     assert next_gripper_event_positions(np.zeros(0), np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_approach_frames_are_those_before_the_first_gripper_change():
+    np.testing.assert_array_equal(approach_frames(np.array([-1, -1, 1, 1, -1.0])), [True, True, False, False, False])
+    assert approach_frames(np.ones(3)).all()  # a push: no change, every frame approaches
+    with pytest.raises(ValueError, match="gripper must be"):
+        approach_frames(np.ones((2, 2)))
+
+
+def test_grounding_loss_counts_only_the_rows_asked():
+    position = torch.tensor([[0.6, -0.1, 0.05], [0.4, 0.1, 0.1]])
+    predicted = normalize_position(position)
+    predicted[1] += 1.0  # only the second row is wrong
+    assert float(grounding_loss(predicted, position, torch.tensor([True, False]))) == 0.0
+    assert float(grounding_loss(predicted, position, torch.tensor([False, True]))) > 0.9
+    none = grounding_loss(predicted.requires_grad_(), position, torch.tensor([False, False]))
+    assert float(none) == 0.0 and none.requires_grad  # still in the graph (DDP needs every gradient)
 
 
 @pytest.mark.parametrize(
@@ -49,6 +66,7 @@ def test_training_samples_carry_subgoals_when_the_dataset_has_tcp_poses(tmp_path
     frames = [with_pose.reader.episode_frames(0)["observation.tcp_pose"][k, :3] for k in (5, 9)]
     np.testing.assert_allclose(with_pose[2]["subgoal_position"], frames[0])
     np.testing.assert_allclose(with_pose[7]["subgoal_position"], frames[1])
+    assert with_pose[4]["subgoal_is_approach"] and not with_pose[5]["subgoal_is_approach"]
     without = TrainingSamples(write_synthetic_dataset(tmp_path / "b", episodes=1, length=10),
                               history=1, future_frames=0, cameras=[])
     assert "subgoal_position" not in without[2]
@@ -164,6 +182,7 @@ def test_compute_loss_adds_the_weighted_grounding_loss_and_trains_the_grounding(
         (lambda b: b.pop("subgoal_position"), "subgoal_position"),
         (lambda b: b.update(subgoal_position=torch.zeros(2, 2)), r"subgoal_position'\] must be finite \(2, 3\)"),
         (lambda b: b.update(subgoal_position=torch.full((2, 3), float("nan"))), "subgoal_position"),
+        (lambda b: b.update(subgoal_is_approach=torch.ones(3, dtype=torch.bool)), r"subgoal_is_approach'\] must be \(2,\)"),
     ],
 )
 def test_compute_loss_names_a_missing_or_bad_subgoal(change, message):

@@ -64,7 +64,15 @@ class InstructionGrounding(nn.Module):
         return self.goal(torch.cat([read, subgoal], dim=-1)), subgoal
 
 
-def grounding_loss(predicted: torch.Tensor, subgoal_position: torch.Tensor) -> torch.Tensor:
-    """Smooth-L1 loss of predicted sub-goals (B, 3) in feature units against positions (B, 3) [m]."""
+def grounding_loss(
+    predicted: torch.Tensor, subgoal_position: torch.Tensor, counts: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Smooth-L1 loss of predicted sub-goals (B, 3) in feature units against positions (B, 3) [m],
+    averaged over the rows where `counts` (B,) bool is True (all rows when None; 0 when none counts,
+    still connected to the graph)."""
     target = normalize_position(subgoal_position).to(predicted.dtype)
-    return F.smooth_l1_loss(predicted, target, beta=0.05)
+    per_row = F.smooth_l1_loss(predicted, target, beta=0.05, reduction="none").mean(-1)
+    if counts is None:
+        return per_row.mean()
+    weights = counts.to(per_row.dtype)
+    return (per_row * weights).sum() / weights.sum().clamp(min=1.0)

@@ -439,8 +439,9 @@ class TriVLA(nn.Module):
         and either raw inputs "static_rgb"/"wrist_rgb" uint8 (B, H, W, 3) + "instruction" list[str], or
         precomputed "q_vl" (B, S, D_llm) + optional "q_vl_mask" (B, S) and "dynamics_static"/
         "dynamics_wrist" (B, T+1, C, H_p, W_p). Systems 2 and 3 run without gradient unless train_systems_2_3.
-        With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py):
-        the loss adds `grounding_weight` x the grounding's sub-goal loss.
+        With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py)
+        and optionally "subgoal_is_approach" bool (B,) (only those rows count): the loss adds
+        `grounding_weight` x the grounding's sub-goal loss.
         Returns (loss, info)."""
         pol = self.config.policy
         actions = self._batch_tensor(batch, "action")
@@ -501,7 +502,12 @@ class TriVLA(nn.Module):
             target = self._batch_tensor(batch, "subgoal_position")
             if tuple(target.shape) != (b, 3) or not torch.isfinite(target).all():
                 raise ValueError(f"batch['subgoal_position'] must be finite ({b}, 3); got {tuple(target.shape)}")
-            aux = grounding_loss(subgoal, target)
+            counts = batch.get("subgoal_is_approach")
+            if counts is not None:
+                counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
+                if tuple(counts.shape) != (b,):
+                    raise ValueError(f"batch['subgoal_is_approach'] must be ({b},); got {tuple(counts.shape)}")
+            aux = grounding_loss(subgoal, target, counts)
             loss = flow_loss + grounding_weight * aux
             info.update(flow_loss=float(flow_loss.detach()), grounding_loss=float(aux.detach()))
         info["loss"] = float(loss.detach())

@@ -309,6 +309,7 @@ class PolicyFeatureDataset:
         }
         if "subgoal_position" in sample:
             item["subgoal_position"] = torch.from_numpy(np.asarray(sample["subgoal_position"], dtype=np.float32))
+            item["subgoal_is_approach"] = torch.tensor(bool(sample["subgoal_is_approach"]))
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
             if self.use_system2:
@@ -344,4 +345,6 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
     for key in ("dynamics_static", "dynamics_wrist", "subgoal_position"):
         if key in items[0]:
             batch[key] = torch.stack([it[key] for it in items]).float()
+    if "subgoal_is_approach" in items[0]:
+        batch["subgoal_is_approach"] = torch.stack([it["subgoal_is_approach"] for it in items])
     return batch
