@@ -43,7 +43,7 @@ def test_grounding_loss_counts_only_the_rows_asked():
     assert float(grounding_loss(predicted, position, torch.tensor([True, False]))) == 0.0
     assert float(grounding_loss(predicted, position, torch.tensor([False, True]))) > 0.9
     none = grounding_loss(predicted.requires_grad_(), position, torch.tensor([False, False]))
-    assert float(none) == 0.0 and none.requires_grad  # still in the graph (DDP needs every gradient)
+    assert float(none.detach()) == 0.0 and none.requires_grad  # still in the graph (DDP needs every gradient)
 
 
 @pytest.mark.parametrize(
