@@ -19,12 +19,17 @@ from __future__ import annotations
 import numpy as np
 
 
+def gripper_changes(gripper: np.ndarray) -> np.ndarray:
+    """Frames k whose gripper command (T,) has another sign than frame k-1's, ascending."""
+    return np.flatnonzero(np.sign(gripper[1:]) != np.sign(gripper[:-1])) + 1
+
+
 def approach_frames(gripper: np.ndarray) -> np.ndarray:
     """bool (T,): True for the frames before the first gripper change (every frame when there is none)."""
     gripper = np.asarray(gripper, dtype=np.float64)
     if gripper.ndim != 1:
         raise ValueError(f"gripper must be (T,); got {gripper.shape}")
-    changes = np.flatnonzero(np.sign(gripper[1:]) != np.sign(gripper[:-1])) + 1
+    changes = gripper_changes(gripper)
     first = int(changes[0]) if changes.size else len(gripper)
     return np.arange(len(gripper)) < first
 
@@ -45,8 +50,7 @@ def next_gripper_event_positions(gripper: np.ndarray, tcp_position: np.ndarray) 
         return np.zeros((0, 3), dtype=np.float32)
     if not (np.isfinite(gripper).all() and np.isfinite(tcp_position).all()):
         raise ValueError("gripper and tcp_position must be finite")
-    changes = np.flatnonzero(np.sign(gripper[1:]) != np.sign(gripper[:-1])) + 1
-    events = np.append(changes, length - 1)
+    events = np.append(gripper_changes(gripper), length - 1)
     # For frame t: the first event index strictly after t (the last frame when none is left).
     which = np.searchsorted(events, np.arange(length), side="right")
     return tcp_position[events[np.minimum(which, len(events) - 1)]].astype(np.float32)

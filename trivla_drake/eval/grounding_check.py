@@ -4,8 +4,7 @@ For each of a few unseen scenes of `lift_block`, the instruction is asked once p
 ("pick up the red block", "... green ...", ...): the grounding's sub-goal (the next gripper event,
 a grasp of the named block) should lie nearest to the block named, and close to it. A grounding
 that ignores the colour word scores about 1/3, the share of one block among three, however close
-it comes to *some* block; that is what a mean of the instruction's tokens as a query scored
-(results/instruction_grounding).
+it comes to *some* block (results/instruction_grounding).
 """
 
 from __future__ import annotations

@@ -51,14 +51,17 @@ def _rot_z(angle: float) -> torch.Tensor:
     return torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
 
 
+_CENTRE_TENSOR = torch.tensor(_CENTRE)  # made once: `normalize_position` runs on every System 1 tick
+
+
 def normalize_position(position: torch.Tensor) -> torch.Tensor:
     """Positions (..., 3) [m] in the base frame -> the features' position units: (p - centre) / scale."""
-    return (position - torch.tensor(_CENTRE, dtype=position.dtype, device=position.device)) / _SCALE
+    return (position - _CENTRE_TENSOR.to(device=position.device, dtype=position.dtype)) / _SCALE
 
 
 def denormalize_position(features: torch.Tensor) -> torch.Tensor:
     """The inverse of `normalize_position`: feature units (..., 3) -> positions [m]."""
-    return features * _SCALE + torch.tensor(_CENTRE, dtype=features.dtype, device=features.device)
+    return features * _SCALE + _CENTRE_TENSOR.to(device=features.device, dtype=features.dtype)
 
 
 class PandaTcpFeatures(nn.Module):
