@@ -185,12 +185,32 @@ def test_compute_loss_adds_the_weighted_grounding_loss_and_trains_the_grounding(
         (lambda b: b.update(subgoal_is_approach=torch.ones(3, dtype=torch.bool)), r"subgoal_is_approach'\] must be \(2,\)"),
     ],
 )
-def test_compute_loss_names_a_missing_or_bad_subgoal(change, message):
+@pytest.mark.parametrize("alone", [False, True])
+def test_compute_loss_names_a_missing_or_bad_subgoal(change, message, alone):
     model = _grounded_model().eval()
     batch = _batch(model)
     change(batch)
     with pytest.raises(ValueError, match=message):
-        model.compute_loss(batch, generator=torch.Generator().manual_seed(0))
+        if alone:
+            model.compute_grounding_loss(batch)
+        else:
+            model.compute_loss(batch, generator=torch.Generator().manual_seed(0))
+
+
+def test_compute_grounding_loss_is_the_subgoal_loss_alone():
+    """The bind phase's loss: the same sub-goal loss compute_loss adds, with no flow matching, and
+    gradient only into the grounding and the Q_vl path; refused without a grounding."""
+    model = _grounded_model().eval()
+    batch = _batch(model)
+    _, joint = model.compute_loss(batch, generator=torch.Generator().manual_seed(0))
+    loss, info = model.compute_grounding_loss(batch)
+    assert set(info) == {"grounding_loss", "loss"} and info["loss"] == pytest.approx(joint["grounding_loss"], rel=1e-5)
+    loss.backward()
+    with_grad = {name for name, p in model.policy.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+    # the source embedding marks Q_vl against Q_p tokens for the DiT: bind leaves it as it is
+    assert with_grad and with_grad - {"source_embed"} <= set(model.policy.binding_parameters())
+    with pytest.raises(ValueError, match="no instruction grounding"):
+        TriVLA(make_config("tiny")).compute_grounding_loss(batch)
 
 
 def test_grounding_needs_system2():

@@ -96,11 +96,30 @@ def test_parser_maps_every_flag_to_the_config():
                               "--checkpoint-every", "2", "--resume", "--seed", "9", "--workers", "1",
                               "--fraction", "0.1", "--no-system2", "--no-system3", "--no-tcp-features",
                               "--vl-position-embedding", "--dense-weight", "0.5", "--grounding-weight", "0.25",
-                              "--grounding-lr-scale", "2"])
+                              "--grounding-lr-scale", "2", "--grounding-phase", "bind", "--warmup-steps", "0",
+                              "--min-lr-ratio", "1", "--beta2", "0.999", "--grad-clip", "0"])
     config = config_from_args(args)
     assert (config.stage, config.data, config.out, config.preset, config.init) == ("policy", "d", "o", "cpu", "i")
     assert (config.steps, config.batch_size, config.lr, config.checkpoint_every) == (7, 3, 0.5, 2)
     assert (config.resume, config.seed, config.workers, config.fraction) == (True, 9, 1, 0.1)
     assert not config.use_system2 and not config.use_system3 and not config.tcp_features
     assert config.vl_position_embedding and config.dense_weight == 0.5 and config.grounding_weight == 0.25
-    assert config.grounding_lr_scale == 2.0
+    assert config.grounding_lr_scale == 2.0 and config.grounding_phase == "bind"
+    assert (config.warmup_steps, config.min_lr_ratio, config.beta2, config.grad_clip) == (0, 1.0, 0.999, 0.0)
+    defaults = config_from_args(parser.parse_args(["train", "--stage", "policy", "--out", "o"]))
+    assert (defaults.warmup_steps, defaults.min_lr_ratio, defaults.beta2, defaults.grad_clip) == (100, 0.1, 0.95, 1.0)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("warmup_steps", -1, "warmup_steps must be >= 0"),
+    ("grad_clip", -0.5, "grad_clip must be >= 0"),
+    ("weight_decay", float("nan"), "weight_decay must be >= 0"),
+    ("beta2", 1.0, r"beta2 must be in \[0, 1\)"),
+    ("beta1", -0.1, r"beta1 must be in \[0, 1\)"),
+    ("min_lr_ratio", 1.5, r"min_lr_ratio must be in \[0, 1\]"),
+])
+def test_optimizer_settings_out_of_range_are_named(field, value, message, tmp_path):
+    from trivla_drake.train.config import TrainConfig
+
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(stage="policy", data="d", out=str(tmp_path / "o"), **{field: value}).resolved().validate()

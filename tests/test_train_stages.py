@@ -305,6 +305,62 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
 
 
+def test_grounding_phases_bind_then_follow(runs, tmp_path):
+    """The two-step recipe: --grounding-phase bind trains only the binding (the grounding but its goal
+    projection, and the Q_vl path) on the sub-goal loss alone over the approach frames; follow, from
+    that checkpoint, keeps the binding and trains the rest of System 1 on both losses. Follow without a
+    bound grounding, and either phase without a grounding weight, are refused naming the field."""
+    data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24, tcp_pose=True)
+    init = runs["policy"]["final_checkpoint"]
+    bound = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "bind"), init=init, steps=3,
+                              grounding_weight=1.0, grounding_phase="bind", **runs["common"]))
+    assert bound["samples"] == 3 * 12  # the synthetic gripper first changes at frame 12 of 24
+    before, after = load_checkpoint(init), load_checkpoint(bound["final_checkpoint"])
+    binding = set(after.policy.binding_parameters())
+    assert {"vl_proj.weight", "vl_norm.weight", "grounding.compose.weight"} <= binding
+    assert not any(name.startswith("grounding.goal.") for name in binding)
+    changed = {name for name, p in after.policy.named_parameters()
+               if name in dict(before.policy.named_parameters()) and not torch.equal(p, before.policy.get_parameter(name))}
+    assert changed and changed <= binding and "vl_proj.weight" in changed
+    assert torch.equal(after.policy.grounding.goal[2].weight, torch.zeros_like(after.policy.grounding.goal[2].weight))
+    logged = _rows(tmp_path / "bind")
+    assert all("grounding_loss" in row and "flow_loss" not in row for row in logged)
+    groups = torch.load(tmp_path / "bind" / "final" / "training_state.pt", weights_only=False)["optimizer"]["param_groups"]
+    assert {g["lr_scale"] for g in groups} == {1.0}  # bind trains at --lr
+
+    # a bind run from a grounded checkpoint starts from a fresh grounding drawn from --seed
+    from trivla_drake.train.trainer import build_model
+
+    again = TrainConfig(stage="policy", data=data, out=str(tmp_path / "x"), init=bound["final_checkpoint"], steps=1,
+                        grounding_weight=1.0, grounding_phase="bind", seed=5, **runs["common"]).resolved()
+    rebound = build_model(again, None).policy.grounding.state_dict()
+    assert not torch.equal(rebound["compose.weight"], after.policy.grounding.compose.weight)
+    assert torch.equal(rebound["compose.weight"], build_model(again, None).policy.grounding.compose.weight)
+    other = write_synthetic_dataset(tmp_path / "other", episodes=3, length=24, tcp_pose=True, seed=1)
+    follow = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "follow"), init=bound["final_checkpoint"],
+                               steps=3, grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+    assert follow["samples"] == 3 * 24
+    followed = load_checkpoint(follow["final_checkpoint"])
+    for name, p in followed.policy.named_parameters():
+        assert torch.equal(p, after.policy.get_parameter(name)) == (name in binding), name
+    assert all({"flow_loss", "grounding_loss"} <= set(row) for row in _rows(tmp_path / "follow"))
+    # the binding's feature statistics stay, though another dataset's would differ
+    assert torch.equal(followed.policy.vl_standardizer.mean, after.policy.vl_standardizer.mean)
+
+    with pytest.raises(ValueError, match="follow keeps the instruction grounding.*bind first"):
+        train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,
+                          grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+    with pytest.raises(ValueError, match="follow keeps the instruction grounding.*--init"):
+        train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f2"), steps=1,
+                          grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+    assert not (tmp_path / "f1").exists() or not any((tmp_path / "f1").iterdir())
+    with pytest.raises(ValueError, match="grounding_phase.*bind.*grounding_weight"):
+        TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), grounding_phase="bind").resolved().validate()
+    with pytest.raises(ValueError, match="grounding_phase must be one of joint, bind, follow"):
+        TrainConfig(stage="policy", data=data, out=str(tmp_path / "p"), grounding_weight=1.0,
+                    grounding_phase="both").resolved().validate()
+
+
 def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_path):
     """--dense-weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
     set's label maps next to the LM loss, logs the dense loss, and is refused outside the vlm stage."""

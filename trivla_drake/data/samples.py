@@ -83,6 +83,14 @@ class TrainingSamples:
         episode = int(np.searchsorted(self._starts, index, side="right") - 1)
         return episode, int(index - self._starts[episode])
 
+    def approach_frames(self, episode: int) -> np.ndarray:
+        """bool (T,) of one episode: the frames before its first gripper change (data/subgoals.py),
+        those that train the instruction grounding. Needs the dataset's observation.tcp_pose."""
+        data = self._episode(episode)
+        if "subgoal_is_approach" not in data:
+            raise ValueError(f"the dataset at {self.reader.root} has no {TCP_POSE_KEY!r}: it has no sub-goal labels")
+        return np.asarray(data["subgoal_is_approach"], dtype=bool)
+
     def _episode(self, episode: int) -> dict:
         if episode in self._cache:
             self._cache.move_to_end(episode)

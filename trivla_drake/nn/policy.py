@@ -168,6 +168,23 @@ class FlowMatchingPolicy(nn.Module):
         fixed = self.vl_fixed_positions
         return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed])
 
+    def reset_grounding(self) -> None:
+        """A fresh instruction grounding in place of this one (drawn from torch's global generator)."""
+        if self.grounding is None:
+            raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
+        old = next(self.grounding.parameters())
+        self.grounding = InstructionGrounding(self.config.hidden_size, self.config.num_heads).to(old.device, old.dtype)
+
+    def binding_parameters(self) -> dict[str, nn.Parameter]:
+        """What binds the instruction's words to a place, by name: the instruction grounding but for its
+        goal projection, and the Q_vl path it reads (vl_norm, vl_proj, vl_position). The `bind` phase of
+        training trains exactly these; the `follow` phase keeps them (train/config.py, grounding_phase)."""
+        if self.grounding is None:
+            raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
+        return {name: p for name, p in self.named_parameters()
+                if (name.startswith("grounding.") and not name.startswith("grounding.goal."))
+                or name.split(".")[0] in ("vl_norm", "vl_proj", "vl_position")}
+
     def predict_subgoal(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None) -> torch.Tensor:
         """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl alone."""
         if self.grounding is None:

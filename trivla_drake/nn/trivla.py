@@ -499,19 +499,45 @@ class TriVLA(nn.Module):
         info = {"flow_time_mean": float(t.mean())}
         loss = flow_loss
         if subgoal is not None:
-            target = self._batch_tensor(batch, "subgoal_position")
-            if tuple(target.shape) != (b, 3) or not torch.isfinite(target).all():
-                raise ValueError(f"batch['subgoal_position'] must be finite ({b}, 3); got {tuple(target.shape)}")
-            counts = batch.get("subgoal_is_approach")
-            if counts is not None:
-                counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
-                if tuple(counts.shape) != (b,):
-                    raise ValueError(f"batch['subgoal_is_approach'] must be ({b},); got {tuple(counts.shape)}")
-            aux = grounding_loss(subgoal, target, counts)
+            aux = self._subgoal_loss(batch, subgoal)
             loss = flow_loss + grounding_weight * aux
             info.update(flow_loss=float(flow_loss.detach()), grounding_loss=float(aux.detach()))
         info["loss"] = float(loss.detach())
         return loss, info
+
+    def compute_grounding_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+        """The instruction grounding's sub-goal loss alone (no flow matching): "subgoal_position" float
+        (B, 3) [m], optional "subgoal_is_approach" bool (B,) (only those rows count), and precomputed
+        "q_vl" (B, S, D_llm) with optional "q_vl_mask" (B, S), or raw "static_rgb"/"wrist_rgb" +
+        "instruction" (System 2 then runs without gradient). Returns (loss, info)."""
+        if self.policy.grounding is None:
+            raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
+        if "q_vl" in batch:
+            q_vl = self._batch_tensor(batch, "q_vl")
+            q_vl_mask = self._batch_tensor(batch, "q_vl_mask", torch.bool) if "q_vl_mask" in batch else None
+        else:
+            with torch.no_grad():
+                q_vl, q_vl_mask = self.encode_vision_language_batch(
+                    batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"])
+                )
+        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask))
+        return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
+
+    def _subgoal_loss(self, batch: Mapping[str, Any], subgoal: torch.Tensor) -> torch.Tensor:
+        """grounding_loss of predicted sub-goals (B, 3) against the batch's labels, after checking them."""
+        b = subgoal.shape[0]
+        if "subgoal_position" not in batch:
+            raise ValueError("batch is missing 'subgoal_position', the instruction grounding's labels "
+                             "(a dataset with observation.tcp_pose)")
+        target = self._batch_tensor(batch, "subgoal_position")
+        if tuple(target.shape) != (b, 3) or not torch.isfinite(target).all():
+            raise ValueError(f"batch['subgoal_position'] must be finite ({b}, 3); got {tuple(target.shape)}")
+        counts = batch.get("subgoal_is_approach")
+        if counts is not None:
+            counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
+            if tuple(counts.shape) != (b,):
+                raise ValueError(f"batch['subgoal_is_approach'] must be ({b},); got {tuple(counts.shape)}")
+        return grounding_loss(subgoal, target, counts)
 
     def compute_video_loss(
         self, batch: Mapping[str, Any], *, generator: torch.Generator | None = None

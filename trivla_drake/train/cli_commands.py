@@ -20,6 +20,7 @@ import os
 import sys
 
 from trivla_drake.nn.config import VLM_LOSS_WEIGHTINGS
+from trivla_drake.train.config import GROUNDING_PHASES, TrainConfig
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads on shared cores
 
@@ -32,7 +33,6 @@ def _user_errors():
 
 def config_from_args(args: argparse.Namespace):
     """The TrainConfig the command line asks for."""
-    from trivla_drake.train.config import TrainConfig
 
     return TrainConfig(
         stage=args.stage,
@@ -43,6 +43,10 @@ def config_from_args(args: argparse.Namespace):
         steps=args.steps,
         batch_size=args.batch_size,
         lr=args.lr,
+        warmup_steps=args.warmup_steps,
+        min_lr_ratio=args.min_lr_ratio,
+        beta2=args.beta2,
+        grad_clip=args.grad_clip,
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
         seed=args.seed,
@@ -61,6 +65,7 @@ def config_from_args(args: argparse.Namespace):
         dense_weight=args.dense_weight,
         grounding_weight=args.grounding_weight,
         grounding_lr_scale=args.grounding_lr_scale,
+        grounding_phase=args.grounding_phase,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -111,6 +116,14 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="samples per process per step (default per stage: video 8, vlm 8, policy 32)")
     parser.add_argument("--lr", type=float, default=None, help="peak learning rate (default: video 1e-4, vlm 3e-4, "
                         "policy 1e-4)")
+    parser.add_argument("--warmup-steps", type=int, default=TrainConfig.warmup_steps,
+                        help=f"linear warm-up steps (at most a tenth of the run; default {TrainConfig.warmup_steps})")
+    parser.add_argument("--min-lr-ratio", type=float, default=TrainConfig.min_lr_ratio,
+                        help="after warm-up the rate follows a cosine down to lr x this at the last step; 1 keeps it "
+                             f"constant (default {TrainConfig.min_lr_ratio})")
+    parser.add_argument("--beta2", type=float, default=TrainConfig.beta2, help=f"AdamW beta2 (default {TrainConfig.beta2})")
+    parser.add_argument("--grad-clip", type=float, default=TrainConfig.grad_clip,
+                        help=f"clip the gradient norm to this; 0: no clipping (default {TrainConfig.grad_clip})")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
@@ -152,6 +165,11 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "weight; added when --init has none); 0: none")
     parser.add_argument("--grounding-lr-scale", type=float, default=3.0,
                         help="policy: the instruction grounding's learning rate as a multiple of --lr (default 3)")
+    parser.add_argument("--grounding-phase", default="joint", choices=GROUNDING_PHASES,
+                        help="policy, with --grounding-weight: joint (default) trains System 1 and its grounding "
+                             "together; bind trains only the grounding and the Q_vl projection, on the sub-goal "
+                             "loss over the approach frames; follow keeps those as --init has them and trains the "
+                             "rest of System 1. The two-step recipe is bind, then follow from its checkpoint")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

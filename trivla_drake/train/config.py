@@ -18,6 +18,7 @@ from typing import Any
 from trivla_drake.nn.config import check_vlm_loss_weighting
 
 STAGES = ("video", "vlm", "policy")
+GROUNDING_PHASES = ("joint", "bind", "follow")  # TrainConfig.grounding_phase
 
 # Per-stage defaults for the fields left None (chosen for the `cpu` preset on a 2-core machine;
 # see the measured step times in trivla_drake/train/README.md).
@@ -140,6 +141,13 @@ class TrainConfig:
     # policy stage: the grounding's learning rate is this times the run's (its attention starts from
     # nothing and has to become sharp; System 1's other weights keep the run's rate).
     grounding_lr_scale: float = 3.0
+    # policy stage, with a grounding: "joint" trains all of System 1 on flow matching + W x the sub-goal
+    # loss; "bind" trains only what binds the words to a place (`FlowMatchingPolicy.binding_parameters`)
+    # on the sub-goal loss alone, over the approach frames, at --lr (no flow loss); "follow" keeps
+    # those as its --init has them and trains the rest of System 1 (the goal projection included).
+    # Inside a joint run the binding did not form; bind then follow is the two-step recipe
+    # (results/instruction_grounding).
+    grounding_phase: str = "joint"
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -183,8 +191,12 @@ class TrainConfig:
             raise ValueError(f"vqa_eval_questions must be >= 0; got {self.vqa_eval_questions}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0; got {self.workers}")
-        if self.warmup_steps < 0 or self.weight_decay < 0 or self.grad_clip < 0:
-            raise ValueError("warmup_steps, weight_decay and grad_clip must be >= 0")
+        for name in ("warmup_steps", "weight_decay", "grad_clip"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0; got {getattr(self, name)}")
+        for name in ("beta1", "beta2"):
+            if not 0 <= getattr(self, name) < 1:
+                raise ValueError(f"{name} must be in [0, 1); got {getattr(self, name)}")
         if not 0 <= self.min_lr_ratio <= 1:
             raise ValueError(f"min_lr_ratio must be in [0, 1]; got {self.min_lr_ratio}")
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):
@@ -206,6 +218,11 @@ class TrainConfig:
         if self.grounding_weight and not self.use_system2:
             raise ValueError("grounding_weight (--grounding-weight) grounds the instruction in System 2's tokens: "
                              "it needs System 2 (drop --no-system2)")
+        if self.grounding_phase not in GROUNDING_PHASES:
+            raise ValueError(f"grounding_phase must be one of {', '.join(GROUNDING_PHASES)}; got {self.grounding_phase!r}")
+        if self.grounding_phase != "joint" and not self.grounding_weight > 0:
+            raise ValueError(f"grounding_phase (--grounding-phase) {self.grounding_phase} trains with System 1's "
+                             "instruction grounding: it needs grounding_weight (--grounding-weight) > 0")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
         if self.dense_weight and self.stage != "vlm":

@@ -265,7 +265,9 @@ class PolicyFeatureDataset:
     """One sample per cached frame (every `feature_stride`-th frame of each episode): the current
     state, the action chunk from that frame (padded past the end with holds, `action_is_pad`; entries
     after a disturbed step of a DART demonstration, `action_is_stale`; neither counts), and
-    the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on."""
+    the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on. With `approach_only`,
+    only the frames before each episode's first gripper change (the instruction grounding's bind
+    phase; the dataset needs observation.tcp_pose)."""
 
     def __init__(
         self,
@@ -277,6 +279,7 @@ class PolicyFeatureDataset:
         action_horizon: int,
         use_system2: bool,
         use_system3: bool,
+        approach_only: bool = False,
     ) -> None:
         self.samples = TrainingSamples(
             reader, history=1, future_frames=0, chunk_size=action_horizon, cameras=[],
@@ -288,10 +291,12 @@ class PolicyFeatureDataset:
         rows = []
         for episode in episodes:
             length = int(reader.episodes[episode]["length"])
+            approach = self.samples.approach_frames(episode) if approach_only else None
             for row, t in enumerate(range(0, length, feature_stride)):
-                rows.append((episode, t, row))
+                if approach is None or approach[t]:
+                    rows.append((episode, t, row))
         if not rows:
-            raise ValueError("the selected episodes have no frames")
+            raise ValueError("the selected episodes have no frames" + (" before a gripper change" if approach_only else ""))
         self.index = np.asarray(rows, dtype=np.int64)
         self._handles = _LRU(_open_safetensors, size=32)
 

@@ -135,10 +135,22 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     elif config.init:
         model = load_checkpoint(config.init)
         where = f"--init checkpoint {config.init}"
+        if config.grounding_phase == "follow" and model.policy.grounding is None:
+            raise ValueError(f"grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
+                             f"{where}, which has none: train one with --grounding-phase bind first")
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
                                 config.grounding_weight > 0)
+        if config.grounding_phase == "bind":
+            # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
+            # from a joint run stayed at chance when bound further, a fresh one bound
+            # (results/instruction_grounding).
+            torch.manual_seed(config.seed)
+            model.policy.reset_grounding()
     else:
+        if config.grounding_phase == "follow":
+            raise ValueError("grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
+                             "--init checkpoint: pass --init with a --grounding-phase bind run's checkpoint")
         cfg = make_config(config.preset, init_seed=config.seed,
                           use_system2=config.use_system2, use_system3=config.use_system3)
         return TriVLA(dataclasses.replace(
@@ -186,17 +198,19 @@ class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
     def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
-                 dense_weight: float = 0.0, grounding_weight: float = 0.0) -> None:
+                 dense_weight: float = 0.0, grounding_weight: float = 0.0, grounding_phase: str = "joint") -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
         self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
-        self.grounding_weight = grounding_weight
+        self.grounding_weight, self.grounding_phase = grounding_weight, grounding_phase
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
             return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight)
+        if self.grounding_phase == "bind":
+            return self.model.compute_grounding_loss(batch)
         return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight)
 
 
@@ -272,12 +286,13 @@ def learning_rate(config: TrainConfig, step: int) -> float:
 
 
 def _optimizer(module: nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
-    """AdamW; matrices decay, vectors do not; System 1's instruction grounding learns at
-    `grounding_lr_scale` times the run's learning rate (each group's "lr_scale")."""
+    """AdamW; matrices decay, vectors do not; in a joint run System 1's instruction grounding learns
+    at `grounding_lr_scale` times the run's learning rate (each group's "lr_scale")."""
+    scaled = config.grounding_phase == "joint"
     groups: dict[tuple[bool, bool], list[nn.Parameter]] = {}
     for name, p in module.named_parameters():
         if p.requires_grad:
-            groups.setdefault((p.dim() >= 2, name.startswith("grounding.")), []).append(p)
+            groups.setdefault((p.dim() >= 2, scaled and name.startswith("grounding.")), []).append(p)
     return torch.optim.AdamW(
         [{"params": params, "weight_decay": config.weight_decay if decay else 0.0,
           "lr_scale": config.grounding_lr_scale if grounding else 1.0}
@@ -342,6 +357,7 @@ def _prepare_data(config: TrainConfig, model: TriVLA, reader, env: DistEnv) -> t
         reader, episodes, shards, feature_stride=config.feature_stride,
         action_horizon=model.config.policy.action_horizon,
         use_system2=model.vision_language is not None, use_system3=model.dynamics is not None,
+        approach_only=config.grounding_phase == "bind",
     )
     return dataset, ds.collate_policy, {"episodes": len(episodes), "samples": len(dataset), **summary}
 
@@ -422,6 +438,10 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     model.requires_grad_(False)
     trained = trainable_module(model, config.stage)
     trained.requires_grad_(True)
+    if config.stage == "policy" and config.grounding_phase != "joint":
+        binding = model.policy.binding_parameters()  # bind trains only these; follow all but these
+        for name, p in model.policy.named_parameters():
+            p.requires_grad_((name in binding) == (config.grounding_phase == "bind"))
     if config.stage == "vlm" and model.vision_language.block_head is not None and not config.dense_weight:
         model.vision_language.block_head.requires_grad_(False)  # no dense loss: the head gets no gradient
     model.to(env.device)
@@ -430,7 +450,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     prepare_started = time.time()
     dataset, collate, data_summary = _prepare_data(config, model, reader, env)
-    if config.stage == "policy" and train_state is None:  # a resumed run keeps its checkpoint's statistics
+    # A resumed run keeps its checkpoint's statistics, and a follow run its bind run's (what the binding learnt on).
+    if config.stage == "policy" and train_state is None and config.grounding_phase != "follow":
         from trivla_drake.train.feature_statistics import fit_feature_standardizers
 
         data_summary.update(fit_feature_standardizers(model, dataset.shards, progress=config.progress and env.is_main))
@@ -455,7 +476,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         if env.rank >= len(rng):
             generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
     loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
-                            config.grounding_weight)
+                            config.grounding_weight, config.grounding_phase)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(
