@@ -178,7 +178,10 @@ class FlowMatchingPolicy(nn.Module):
     def binding_parameters(self) -> dict[str, nn.Parameter]:
         """What binds the instruction's words to a place, by name: the instruction grounding but for its
         goal projection, and the Q_vl path it reads (vl_norm, vl_proj, vl_position). The `bind` phase of
-        training trains exactly these; the `follow` phase keeps them (train/config.py, grounding_phase)."""
+        training trains exactly these; the `follow` phase keeps them (train/config.py, grounding_phase).
+        The source embedding added to every Q_vl token is not among them: the DiT shares it, so follow
+        still trains it, and the sub-goal can move a little (20/30 to 21/30 and 28/30 to 29/30 in the
+        probe, results/instruction_grounding)."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         return {name: p for name, p in self.named_parameters()

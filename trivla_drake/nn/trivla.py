@@ -469,14 +469,7 @@ class TriVLA(nn.Module):
         with torch.set_grad_enabled(train_systems_2_3 and torch.is_grad_enabled()):
             q_vl = q_vl_mask = f_static = f_wrist = None
             if self.vision_language is not None:
-                if "q_vl" in batch:
-                    q_vl = self._batch_tensor(batch, "q_vl")
-                    if "q_vl_mask" in batch:
-                        q_vl_mask = self._batch_tensor(batch, "q_vl_mask", torch.bool)
-                else:
-                    q_vl, q_vl_mask = self.encode_vision_language_batch(
-                        batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"])
-                    )
+                q_vl, q_vl_mask = self._batch_q_vl(batch)
             if self.dynamics is not None:
                 if "dynamics_static" in batch:
                     f_static = self._batch_tensor(batch, "dynamics_static")
@@ -512,16 +505,18 @@ class TriVLA(nn.Module):
         "instruction" (System 2 then runs without gradient). Returns (loss, info)."""
         if self.policy.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
-        if "q_vl" in batch:
-            q_vl = self._batch_tensor(batch, "q_vl")
-            q_vl_mask = self._batch_tensor(batch, "q_vl_mask", torch.bool) if "q_vl_mask" in batch else None
-        else:
-            with torch.no_grad():
-                q_vl, q_vl_mask = self.encode_vision_language_batch(
-                    batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"])
-                )
+        with torch.no_grad():
+            q_vl, q_vl_mask = self._batch_q_vl(batch)
         loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask))
         return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
+
+    def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """A batch's Q_vl and its mask: precomputed "q_vl" (+ optional "q_vl_mask"), or System 2 run on
+        "static_rgb"/"wrist_rgb" + "instruction"."""
+        if "q_vl" in batch:
+            mask = self._batch_tensor(batch, "q_vl_mask", torch.bool) if "q_vl_mask" in batch else None
+            return self._batch_tensor(batch, "q_vl"), mask
+        return self.encode_vision_language_batch(batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]))
 
     def _subgoal_loss(self, batch: Mapping[str, Any], subgoal: torch.Tensor) -> torch.Tensor:
         """grounding_loss of predicted sub-goals (B, 3) against the batch's labels, after checking them."""
