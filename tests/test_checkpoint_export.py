@@ -50,3 +50,28 @@ def test_unknown_weights_dtype_names_the_field(saved, tmp_path):
     model, _ = saved
     with pytest.raises(ValueError, match="weights_dtype"):
         save_checkpoint(model, str(tmp_path / "x"), weights_dtype="int8")
+
+
+def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_path, capsys):
+    from trivla_drake.nn.config import make_config
+    from trivla_drake.nn.trivla import TriVLA
+
+    config = make_config("tiny", init_seed=4)
+    assert config.vision_language.select_layer < config.vision_language.llm.num_hidden_layers
+    model = TriVLA(config).eval()
+    source = tmp_path / "full"
+    save_checkpoint(model, str(source))
+    out = tmp_path / "trimmed"
+    assert main(["export", str(source), "--out", str(out), "--dtype", "float32", "--drop-unused-llm-layers"]) == 0
+    assert _size(out) < _size(source)
+    trimmed = load_checkpoint(str(out)).eval()
+    vl = trimmed.vision_language
+    assert len(vl.llm.model.layers) == vl.config.select_layer == vl.llm.config.num_hidden_layers
+    assert trimmed.config.vision_language.drop_unused_llm_layers
+    removed = model.parameter_counts()["system2"] - trimmed.parameter_counts()["system2"]
+    layer = sum(p.numel() for p in model.vision_language.llm.model.layers[-1].parameters())
+    assert removed == layer * (config.vision_language.llm.num_hidden_layers - config.vision_language.select_layer)
+    obs = example_observation()
+    np.testing.assert_array_equal(trimmed.predict_action_chunk(obs, seed=5), model.predict_action_chunk(obs, seed=5))
+    # The unchanged source still has every layer (a later --stage vlm needs them).
+    assert len(load_checkpoint(str(source)).vision_language.llm.model.layers) == config.vision_language.llm.num_hidden_layers

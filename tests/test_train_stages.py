@@ -377,3 +377,18 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
         TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), dense_weight=1.0).resolved().validate()
     with pytest.raises(ValueError, match="dense_weight must be >= 0"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=-1.0).resolved().validate()
+
+
+def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, tmp_path):
+    """An export with --drop-unused-llm-layers answers no questions: the vlm stage says so before it trains."""
+    from trivla_drake.train.checkpoints import export_checkpoint
+
+    trimmed = export_checkpoint(runs["vlm"]["final_checkpoint"], tmp_path / "trimmed", drop_unused_llm_layers=True)
+    with pytest.raises(ValueError, match="drop_unused_llm_layers.*without --drop-unused-llm-layers"):
+        train(TrainConfig(stage="vlm", out=str(tmp_path / "v"), init=str(trimmed), steps=2, vqa_scenes=10,
+                          vqa_questions_per_scene=4, vqa_eval_questions=0, **runs["common"]))
+    assert not (tmp_path / "v" / "final").exists()
+    # the policy stage may start from it (Q_vl is the same)
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), init=str(trimmed),
+                                steps=2, **runs["common"]))
+    assert len(load_checkpoint(summary["final_checkpoint"]).vision_language.llm.model.layers) == 1

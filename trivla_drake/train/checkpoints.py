@@ -105,13 +105,23 @@ def copy_checkpoint(source: str | os.PathLike, target: str | os.PathLike) -> Pat
     return _write_folder_atomically(target, lambda tmp: shutil.copytree(source, tmp))
 
 
-def export_checkpoint(source: str | os.PathLike, target: str | os.PathLike, *, weights_dtype: str = "float16") -> Path:
+def export_checkpoint(
+    source: str | os.PathLike,
+    target: str | os.PathLike,
+    *,
+    weights_dtype: str = "float16",
+    drop_unused_llm_layers: bool = False,
+) -> Path:
     """Writes the model of checkpoint `source` (no optimizer state) to `target` atomically, its weights in
-    `weights_dtype` (float16: half the size, e.g. the shipped models/trivla_cpu). An existing `target`
+    `weights_dtype` (float16: half the size, e.g. the shipped models/trivla_cpu). With
+    `drop_unused_llm_layers`, System 2's LLM keeps only the layers up to its read-out layer: the same
+    Q_vl and actions, a smaller file, but no longer a start for the vlm stage. An existing `target`
     is replaced only once the new one is complete."""
     from trivla_drake.nn.checkpoint import load_checkpoint
 
     model = load_checkpoint(str(source))
+    if drop_unused_llm_layers and model.vision_language is not None:
+        model.vision_language.drop_layers_above_readout()
     return _write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
 
 

@@ -183,7 +183,9 @@ def run_export(args: argparse.Namespace) -> int:
     from trivla_drake.train.checkpoints import export_checkpoint
 
     try:
-        target = export_checkpoint(args.checkpoint, args.out, weights_dtype=args.dtype)
+        target = export_checkpoint(
+            args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers
+        )
     except _user_errors() as error:
         print(f"trivla-drake export: error: {error}", file=sys.stderr)
         return 2
@@ -201,6 +203,9 @@ def add_export_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="folder to write (replaced atomically if it exists)")
     parser.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
                         help="stored weight type (default float16); loading casts back to float32")
+    parser.add_argument("--drop-unused-llm-layers", action="store_true",
+                        help="keep only System 2's LLM layers up to its read-out layer (select_layer): the "
+                             "same actions from a smaller file, but no longer a start for --stage vlm")
     parser.set_defaults(run=run_export)
     return parser
 

@@ -165,6 +165,12 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
         raise ValueError(f"{where} has use_system2/3 = {model.config.use_system2}/{model.config.use_system3}, "
                          f"the run asks {config.use_system2}/{config.use_system3}")
+    vl_config = model.config.vision_language
+    if config.stage == "vlm" and model.vision_language is not None and vl_config.drop_unused_llm_layers:
+        raise ValueError(f"{where} has vision_language.drop_unused_llm_layers: its LLM ends at the read-out "
+                         f"layer (select_layer {vl_config.select_layer}), so the vlm stage would train the "
+                         f"answers on Q_vl itself; start from the checkpoint it was exported from "
+                         f"(export without --drop-unused-llm-layers)")
     if model.config.policy.tcp_features != config.tcp_features:
         raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
                          f"{config.tcp_features} (--no-tcp-features)")
