@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 7 hours;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 9 hours;
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -37,16 +37,18 @@ arm policy "$RUNS/vlm/final" 1
 arm policy_s13 "$RUNS/video/final" 1 --no-system2
 arm policy_s1 "$RUNS/video/final" 1 --no-system2 --no-system3
 arm policy_data10 "$RUNS/vlm/final" 0 --fraction 0.1
-# 6. The shipped checkpoint (float16 weights) and the tables.
-trivla-drake export "$RUNS/policy/final" --out models/trivla_cpu
-trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \
+# 6. The plain recipe's model (float16 weights; the default checkpoint until the grounded recipe of
+#    step 12 replaced it, and that recipe's start) and its tables with the ablation arms.
+PLAIN="$RUNS/plain_export"
+trivla-drake export "$RUNS/policy/final" --out "$PLAIN"
+trivla-drake tables --full "$PLAIN" --system1-3 "$RUNS/policy_s13/final" \
     --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
     --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block \
-    --out results
+    --out results/plain_recipe
 # 7. How well the frozen features locate the blocks (linear probes on the 360 clean episodes), with
 #    System 3's noise fixed / random.
-trivla-drake probe --data "$DATA" --checkpoint models/trivla_cpu --threads 2 > results/feature_probe.md
-trivla-drake probe --data "$DATA" --checkpoint models/trivla_cpu --threads 2 --feature-noise random \
+trivla-drake probe --data "$DATA" --checkpoint "$PLAIN" --threads 2 > results/feature_probe.md
+trivla-drake probe --data "$DATA" --checkpoint "$PLAIN" --threads 2 --feature-noise random \
     > results/feature_probe_random_noise.md
 # 8. Optional (STEPS=1; results/dart_tcp_experiment/): the arms after their first 3000 steps, and
 #    the full arm 4500 steps more again (13500 in all), evaluated like the tables (the full arms as
@@ -67,15 +69,15 @@ fi
 # 9. Optional (NOISE=1; results/noise_scale_0/): the same tables with System 1 sampling from the noise
 #    mean (--noise-scale 0, deterministic chunks), and the full model at noise scale 0.5.
 if [[ "${NOISE:-0}" == 1 ]]; then
-  trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/policy_s13/final" \
+  trivla-drake tables --full "$PLAIN" --system1-3 "$RUNS/policy_s13/final" \
       --system1 "$RUNS/policy_s1/final" --data10 "$RUNS/policy_data10/final" \
       --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block \
       --noise-scale 0 --out results/noise_scale_0
   mkdir -p results/noise_scale_0/scale_0.5
   for seed in 1000 1001 1002; do
-    trivla-drake evaluate --policy trivla --noise-scale 0.5 --episodes 2 --chains 3 --seed "$seed" --workers 2 \
+    trivla-drake evaluate --policy "$PLAIN" --noise-scale 0.5 --episodes 2 --chains 3 --seed "$seed" --workers 2 \
         --no-progress --json > "results/noise_scale_0/scale_0.5/seed$seed.json"
-    trivla-drake evaluate --policy trivla --noise-scale 0.5 --episodes 2 --paraphrases --seed "$seed" --workers 2 \
+    trivla-drake evaluate --policy "$PLAIN" --noise-scale 0.5 --episodes 2 --paraphrases --seed "$seed" --workers 2 \
         --no-progress --json > "results/noise_scale_0/scale_0.5/paraphrases_seed$seed.json"
   done
 fi
@@ -112,3 +114,28 @@ if [[ "${GROUNDING:-0}" == 1 ]]; then
   trivla-drake train --stage vlm --out "$RUNS/vlm_norm" --init "$RUNS/video/final" --steps 1000 --threads 2 \
       --image-token-norm
 fi
+# 12. The shipped checkpoint (results/grounded_policy/): System 1 with the instruction grounding, on
+#     a System 2 whose image tokens say where the blocks are, all from the plain recipe's model on the
+#     360 clean episodes. System 2 800 more steps with the dense block-map loss; System 1 2000 steps
+#     with token positions and the grounding (joint), then a fresh grounding bound alone (plain
+#     Adam) and checked, then the rest of System 1 following it 2500 steps; exported without the LLM
+#     layers above the read-out (24.1 MB), and the tables (no ablation arms of its own: those are the
+#     plain recipe's, results/plain_recipe/).
+mkdir -p results/grounded_policy
+trivla-drake train --stage vlm --out "$RUNS/vlm_dense" --init "$PLAIN" --dense-weight 1 --steps 800 --threads 1
+trivla-drake probe --data "$DATA" --checkpoint "$RUNS/vlm_dense/final" > results/grounded_policy/feature_probe.md
+trivla-drake probe --data "$DATA" --checkpoint "$PLAIN" > results/grounded_policy/feature_probe_shipped.md
+GROUNDED_POLICY=(train --stage policy --data "$DATA" --feature-stride 3 --vl-position-embedding --grounding-weight 1
+                 --threads 2)
+trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_joint" --init "$RUNS/vlm_dense/final" --lr 3e-4 \
+    --steps 2000 --grounding-lr-scale 7
+trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_bind" --init "$RUNS/grounded_joint/final" \
+    --grounding-phase bind --lr 2e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 \
+    --steps 1200 --batch-size 64
+trivla-drake probe --checkpoint "$RUNS/grounded_bind/final" --grounding-scenes 10 --threads 2 \
+    > results/grounded_policy/grounding_check.md
+trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_follow" --init "$RUNS/grounded_bind/final" \
+    --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1
+trivla-drake export "$RUNS/grounded_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results

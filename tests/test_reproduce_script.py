@@ -40,17 +40,35 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
     assert {"collect", "train", "export", "tables", "probe", "evaluate"} <= set(commands)
 
 
-def test_the_shipped_checkpoint_is_the_export_of_the_9000_step_dart_run(tmp_path):
+def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
+    """models/trivla_cpu: follow <- bind <- joint (grounding, token positions) <- System 2 with the dense
+    loss <- the export of the plain recipe's 9000-step run on the DART demonstrations."""
     calls = _dry_run(tmp_path)
-    export = next(argv for argv in calls if argv[0] == "export" and argv[-1] == "models/trivla_cpu")
-    run = export[1].removesuffix("/final")
-    second = next(argv for argv in calls if argv[0] == "train" and argv[argv.index("--out") + 1] == run)
-    first_run = second[second.index("--init") + 1].removesuffix("/final")
-    first = next(argv for argv in calls if argv[0] == "train" and argv[argv.index("--out") + 1] == first_run)
-    assert int(first[first.index("--steps") + 1]) + int(second[second.index("--steps") + 1]) == 9000
-    data = second[second.index("--data") + 1]
-    collect_dart = next(argv for argv in calls if argv[0] == "collect" and argv[argv.index("--out") + 1] == data)
+
+    def option(argv, name):
+        return argv[argv.index(name) + 1]
+
+    def run_writing(out):
+        return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
+
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
+    assert "--drop-unused-llm-layers" in export
+    follow = run_writing(export[1].removesuffix("/final"))
+    bind = run_writing(option(follow, "--init").removesuffix("/final"))
+    joint = run_writing(option(bind, "--init").removesuffix("/final"))
+    vlm = run_writing(option(joint, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint" for a in (follow, bind, joint)] \
+        == ["follow", "bind", "joint"]
+    assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0 for a in (follow, bind, joint))
+    assert option(vlm, "--stage") == "vlm" and float(option(vlm, "--dense-weight")) > 0
+    plain_export = run_writing(option(vlm, "--init"))
+    second = run_writing(plain_export[1].removesuffix("/final"))
+    first = run_writing(option(second, "--init").removesuffix("/final"))
+    assert int(option(first, "--steps")) + int(option(second, "--steps")) == 9000
+    collect_dart = next(argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(second, "--data"))
     assert "--action-noise" in collect_dart and "--no-tcp-features" not in second
+    tables = next(argv for argv in calls if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu")
+    assert option(tables, "--out") == "results"
 
 
 def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
