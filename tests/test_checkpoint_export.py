@@ -52,12 +52,13 @@ def test_unknown_weights_dtype_names_the_field(saved, tmp_path):
         save_checkpoint(model, str(tmp_path / "x"), weights_dtype="int8")
 
 
-def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_path, capsys):
+def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_path):
     from trivla_drake.nn.config import make_config
     from trivla_drake.nn.trivla import TriVLA
 
     config = make_config("tiny", init_seed=4)
-    assert config.vision_language.select_layer < config.vision_language.llm.num_hidden_layers
+    all_layers, readout = config.vision_language.llm.num_hidden_layers, config.vision_language.select_layer
+    assert readout < all_layers
     model = TriVLA(config).eval()
     source = tmp_path / "full"
     save_checkpoint(model, str(source))
@@ -70,8 +71,8 @@ def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_pat
     assert trimmed.config.vision_language.drop_unused_llm_layers
     removed = model.parameter_counts()["system2"] - trimmed.parameter_counts()["system2"]
     layer = sum(p.numel() for p in model.vision_language.llm.model.layers[-1].parameters())
-    assert removed == layer * (config.vision_language.llm.num_hidden_layers - config.vision_language.select_layer)
+    assert removed == layer * (all_layers - readout)
     obs = example_observation()
     np.testing.assert_array_equal(trimmed.predict_action_chunk(obs, seed=5), model.predict_action_chunk(obs, seed=5))
     # The unchanged source still has every layer (a later --stage vlm needs them).
-    assert len(load_checkpoint(str(source)).vision_language.llm.model.layers) == config.vision_language.llm.num_hidden_layers
+    assert len(load_checkpoint(str(source)).vision_language.llm.model.layers) == all_layers

@@ -142,22 +142,19 @@ class VisionLanguageModule(nn.Module):
         head = sum(len(p) for p in pieces[:-1]) + num_views * self.num_image_tokens
         return head + len(self.tokenizer.encode(PROMPT_AFTER_IMAGES))
 
-    def drop_layers_above_readout(self) -> int:
+    def drop_layers_above_readout(self) -> None:
         """Removes the LLM decoder layers above `select_layer`, which computing Q_vl never runs (GR00T
         builds its LLM this way), and records it in the config, so a saved checkpoint rebuilds the
         shorter LLM. Q_vl is unchanged; the LLM's answers (VQA) are not, so a model trimmed this way is
-        for inference, not for the vlm stage. Returns the number of layers removed."""
-        layers = self.llm.model.layers
+        for inference, not for the vlm stage."""
         keep = self.config.select_layer
-        removed = len(layers) - keep
-        if removed > 0:
-            self.llm.model.layers = nn.ModuleList(list(layers)[:keep])
+        if len(self.llm.model.layers) > keep:
+            self.llm.model.layers = nn.ModuleList(list(self.llm.model.layers)[:keep])
             llm_config = self.llm.config
             llm_config.num_hidden_layers = keep
-            if getattr(llm_config, "layer_types", None) is not None:
+            if getattr(llm_config, "layer_types", None) is not None:  # e.g. Qwen2 LLMs list one per layer
                 llm_config.layer_types = list(llm_config.layer_types)[:keep]
         self.config.drop_unused_llm_layers = True
-        return removed
 
     @property
     def readout_layer(self) -> nn.Module:
