@@ -392,3 +392,14 @@ def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, t
     summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), init=str(trimmed),
                                 steps=2, **runs["common"]))
     assert len(load_checkpoint(summary["final_checkpoint"]).vision_language.llm.model.layers) == 1
+
+
+def test_a_fresh_vlm_run_builds_every_llm_layer_of_a_preset_that_drops_them(tmp_path):
+    """The paper preset builds its LLM only up to the read-out layer (Q_vl needs no more); a fresh
+    vlm run reads its answers from the last layer, so it builds them all. Configs only: no weights."""
+    from trivla_drake.train.trainer import fresh_model_config
+
+    assert make_config("paper").vision_language.drop_unused_llm_layers
+    for stage, drops in (("vlm", False), ("policy", True)):
+        config = TrainConfig(stage=stage, preset="paper", data=str(tmp_path), out=str(tmp_path / stage)).resolved()
+        assert fresh_model_config(config).vision_language.drop_unused_llm_layers is drops, stage

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from trivla_drake.nn.checkpoint import load_checkpoint, read_checkpoint_config
-from trivla_drake.nn.config import PRESETS, make_config
+from trivla_drake.nn.config import PRESETS, TriVLAConfig, make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train import checkpoints as ckpt
 from trivla_drake.train.config import TrainConfig, check_resume_compatible
@@ -126,6 +126,24 @@ def _dense_classes(config: TrainConfig) -> int:
     return len(BLOCK_COLORS) if config.dense_weight > 0 else 0
 
 
+def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
+    """The `preset` model a run without --init or resume builds, with the run's options. A vlm run
+    keeps every LLM layer (a preset may build only those up to the read-out, as `paper` does):
+    its answers are read from the LLM's last layer, not from Q_vl."""
+    cfg = make_config(config.preset, init_seed=config.seed,
+                      use_system2=config.use_system2, use_system3=config.use_system3)
+    vision_language = cfg.vision_language
+    return dataclasses.replace(
+        cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
+                                        vl_position_embedding=config.vl_position_embedding and config.use_system2,
+                                        instruction_grounding=config.grounding_weight > 0),
+        vision_language=dataclasses.replace(
+            vision_language, image_token_norm=config.image_token_norm,
+            dense_classes=_dense_classes(config) if config.use_system2 else 0,
+            drop_unused_llm_layers=vision_language.drop_unused_llm_layers and config.stage != "vlm"),
+    )
+
+
 def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     """The model a run starts from: the resumed checkpoint, the `init` checkpoint (with ablations
     applied), or a fresh `preset` model initialised from `seed`."""
@@ -151,15 +169,7 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow":
             raise ValueError("grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              "--init checkpoint: pass --init with a --grounding-phase bind run's checkpoint")
-        cfg = make_config(config.preset, init_seed=config.seed,
-                          use_system2=config.use_system2, use_system3=config.use_system3)
-        return TriVLA(dataclasses.replace(
-            cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
-                                            vl_position_embedding=config.vl_position_embedding and config.use_system2,
-                                            instruction_grounding=config.grounding_weight > 0),
-            vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=config.image_token_norm,
-                                                dense_classes=_dense_classes(config) if config.use_system2 else 0),
-        ))
+        return TriVLA(fresh_model_config(config))
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
