@@ -25,7 +25,8 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     (work / "results").mkdir(parents=True)
     (work / "data").mkdir()
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "DATA": "data/sim",
-           "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1"}
+           "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
+           "DART_FOLLOW": "1"}
     (work / "data" / "sim").mkdir()
     subprocess.run(["bash", str(SCRIPT)], cwd=work, env=env, check=True, capture_output=True, text=True)
     return [shlex.split(line) for line in calls.read_text().splitlines()]
