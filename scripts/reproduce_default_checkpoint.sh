@@ -125,16 +125,15 @@ mkdir -p results/grounded_policy
 trivla-drake train --stage vlm --out "$RUNS/vlm_dense" --init "$PLAIN" --dense-weight 1 --steps 800 --threads 1
 trivla-drake probe --data "$DATA" --checkpoint "$RUNS/vlm_dense/final" > results/grounded_policy/feature_probe.md
 trivla-drake probe --data "$DATA" --checkpoint "$PLAIN" > results/grounded_policy/feature_probe_shipped.md
-GROUNDED_POLICY=(train --stage policy --data "$DATA" --feature-stride 3 --vl-position-embedding --grounding-weight 1
-                 --threads 2)
-trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_joint" --init "$RUNS/vlm_dense/final" --lr 3e-4 \
+GROUNDED_POLICY=(train --stage policy --feature-stride 3 --vl-position-embedding --grounding-weight 1 --threads 2)
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_joint" --init "$RUNS/vlm_dense/final" --lr 3e-4 \
     --steps 2000 --grounding-lr-scale 7
-trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_bind" --init "$RUNS/grounded_joint/final" \
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_bind" --init "$RUNS/grounded_joint/final" \
     --grounding-phase bind --lr 2e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 \
     --steps 1200 --batch-size 64
 trivla-drake probe --checkpoint "$RUNS/grounded_bind/final" --grounding-scenes 10 --threads 2 \
     > results/grounded_policy/grounding_check.md
-trivla-drake "${GROUNDED_POLICY[@]}" --out "$RUNS/grounded_follow" --init "$RUNS/grounded_bind/final" \
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow" --init "$RUNS/grounded_bind/final" \
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1
 trivla-drake export "$RUNS/grounded_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
 trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
