@@ -346,6 +346,14 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
     assert all({"flow_loss", "grounding_loss"} <= set(row) for row in _rows(tmp_path / "follow"))
     # the binding's feature statistics stay, though another dataset's would differ
     assert torch.equal(followed.policy.vl_standardizer.mean, after.policy.vl_standardizer.mean)
+    # --subgoal-offset: a follow run adds the offset encoder (from zero) and trains it with the rest
+    offset = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "offset"), init=bound["final_checkpoint"],
+                               steps=2, grounding_weight=1.0, grounding_phase="follow", subgoal_offset=True,
+                               **runs["common"]))
+    offset_model = load_checkpoint(offset["final_checkpoint"])
+    assert offset_model.config.policy.subgoal_offset and not after.config.policy.subgoal_offset
+    assert offset_model.policy.subgoal_offset.mlp[2].weight.abs().sum() > 0
+    assert torch.equal(offset_model.policy.grounding.compose.weight, after.policy.grounding.compose.weight)
 
     with pytest.raises(ValueError, match="follow keeps the instruction grounding.*bind first"):
         train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -52,6 +54,18 @@ def test_policy_drives_the_arm_and_publishes_a_chunk(tiny_model):
     chunk = policy.GetOutputPort("action_chunk").Eval(policy.GetMyContextFromRoot(context))
     assert chunk.shape == (10, 7) and np.all(np.isfinite(chunk))
     assert np.abs(end[:7] - start[:7]).max() > 1e-3  # an untrained policy still moves the arm
+
+
+def test_a_system1_reading_its_subgoal_offset_gets_the_robot_state():
+    """policy.subgoal_offset: System 1 computes the tcp from the robot_state port it already reads."""
+    config = make_config("tiny")
+    config = dataclasses.replace(config, policy=dataclasses.replace(
+        config.policy, tcp_features=True, instruction_grounding=True, subgoal_offset=True))
+    diagram, station, policy = _closed_loop(TriVLA(config).eval())
+    simulator = Simulator(diagram)
+    _rollout(simulator, diagram, station, 0.3)
+    chunk = policy.GetOutputPort("action_chunk").Eval(policy.GetMyContextFromRoot(simulator.get_context()))
+    assert chunk.shape == (10, 7) and np.all(np.isfinite(chunk))
 
 
 def test_same_seed_same_rollout_and_contexts_are_independent(tiny_model):

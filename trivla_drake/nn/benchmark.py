@@ -154,7 +154,7 @@ def _benchmark(preset: str, repeats: int, seed: int, device: str | torch.device 
                     repeats,
                     device,
                 ),
-                "system1": _median_ms(lambda: model.sample_actions(q_vl, q_s, features, seed=seed), repeats, device),
+                "system1": _median_ms(lambda: model.sample_actions(q_vl, q_s, features, seed=seed, state=obs["state"]), repeats, device),
                 "full": latency,
             }
         del model

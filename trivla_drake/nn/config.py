@@ -205,6 +205,13 @@ class PolicyConfig:
     # position (an auxiliary loss in training) and adds a goal to the state token. Needs System 2.
     # Off in checkpoints saved before it existed; `train --stage policy --grounding-weight W` turns it on.
     instruction_grounding: bool = False
+    # Also tell the state token where the grounding's sub-goal is from the tool-centre point: an MLP
+    # of (sub-goal - tcp position) added to Q_s. The DiT otherwise has to subtract two positions it
+    # only sees embedded (the goal and the tcp features), and its gripper closed a median 5.5 cm from
+    # its own grounding's sub-goal (results/subgoal_offset). Needs instruction_grounding and
+    # tcp_features; System 1 then needs the robot state with Q_s (`TriVLA.sample_actions(state=...)`).
+    # Off in checkpoints saved before it existed; `train --stage policy --subgoal-offset` turns it on.
+    subgoal_offset: bool = False
 
 
 @dataclass
@@ -286,6 +293,9 @@ def validate_config(config: TriVLAConfig) -> None:
         )
     if pol.instruction_grounding and not config.use_system2:
         raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
+    if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
+        raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "
+                         "policy.instruction_grounding and policy.tcp_features")
 
 
 # ---------------------------------------------------------------------------------------------

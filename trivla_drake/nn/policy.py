@@ -45,6 +45,27 @@ class ActionEncoder(nn.Module):
         return self.w3(F.silu(self.w2(torch.cat([a, tau], dim=-1), embodiment_id)), embodiment_id)
 
 
+class SubgoalOffsetEncoder(nn.Module):
+    """(sub-goal - tcp position) (B, 3) in tcp feature units -> a term (B, D) added to Q_s.
+
+    The sub-goal is detached: flow matching must not move the grounding to suit the offset (the bind
+    phase trains the grounding; results/instruction_grounding). The offset is multiplied by
+    `OFFSET_GAIN` first, so that a centimetre (0.05 feature units) is not lost in the MLP's first
+    layer; the output layer starts at zero, so a System 1 given this module starts as the one without."""
+
+    OFFSET_GAIN = 5.0  # feature units are 0.2 m: after the gain, 1 is 4 cm
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(3, dim), nn.SiLU(), nn.Linear(dim, dim))
+        nn.init.zeros_(self.mlp[2].weight)
+        nn.init.zeros_(self.mlp[2].bias)
+
+    def forward(self, subgoal: torch.Tensor, tcp_position: torch.Tensor) -> torch.Tensor:
+        offset = (subgoal.detach() - tcp_position.to(subgoal.dtype)) * self.OFFSET_GAIN
+        return self.mlp(offset)
+
+
 class FlowMatchingPolicy(nn.Module):
     """System 1: Video Former -> Q_p; state MLP -> Q_s; DiT velocity field over action chunks."""
 
@@ -91,6 +112,12 @@ class FlowMatchingPolicy(nn.Module):
                 raise ValueError("policy.instruction_grounding reads System 2's instruction and image tokens: "
                                  "it needs System 2")
             self.grounding = InstructionGrounding(dim, config.num_heads)
+        self.subgoal_offset = None
+        if config.subgoal_offset:
+            if self.grounding is None:
+                raise ValueError("policy.subgoal_offset reads the instruction grounding's sub-goal: it needs "
+                                 "policy.instruction_grounding")
+            self.subgoal_offset = SubgoalOffsetEncoder(dim)
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
             # One set of statistics per view and feature element, shared by the T+1 frames.
@@ -129,10 +156,13 @@ class FlowMatchingPolicy(nn.Module):
         q_vl: torch.Tensor | None,
         q_vl_mask: torch.Tensor | None,
         q_p: torch.Tensor | None,
+        tcp_position: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
-        configured; the cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M);
-        the grounding's predicted sub-goal (B, 3) in tcp feature units, or None without grounding."""
+        configured (and, with `subgoal_offset`, the sub-goal seen from `tcp_position` (B, 3), the tcp
+        position in feature units); the cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and
+        their mask (B, M); the grounding's predicted sub-goal (B, 3) in tcp feature units, or None
+        without grounding."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -141,6 +171,11 @@ class FlowMatchingPolicy(nn.Module):
             if self.grounding is not None:
                 goal, subgoal = self._ground(vl, vl_mask)
                 q_s = q_s + goal.to(q_s.dtype)
+                if self.subgoal_offset is not None:
+                    if tcp_position is None or tuple(tcp_position.shape) != (batch, 3):
+                        got = None if tcp_position is None else tuple(tcp_position.shape)
+                        raise ValueError(f"tcp_position must be ({batch}, 3) (policy.subgoal_offset); got {got}")
+                    q_s = q_s + self.subgoal_offset(subgoal, tcp_position).to(q_s.dtype)
             parts.append(vl)
             masks.append(vl_mask)
         if self.uses_dynamics:

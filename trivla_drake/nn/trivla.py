@@ -242,11 +242,19 @@ class TriVLA(nn.Module):
         features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
-    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist):
+    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):
         """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
-        memory mask, predicted sub-goal or None."""
+        memory mask, predicted sub-goal or None. `state` (B, state_dim), unnormalised, is read only
+        with policy.subgoal_offset (the tcp position); ValueError when such a model gets none."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
-        return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p)
+        tcp_position = None
+        if self.policy.subgoal_offset is not None:
+            if state is None:
+                raise ValueError("state is required: this System 1 reads its sub-goal relative to the tool-centre "
+                                 "point (policy.subgoal_offset), which it computes from the robot state")
+            tcp_position = self.tcp_features(state)[:, :3].to(q_s.dtype)
+        return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
+                                      tcp_position)
 
     def sample_actions_batch(
         self,
@@ -259,11 +267,13 @@ class TriVLA(nn.Module):
         *,
         generator: torch.Generator | None = None,
         num_steps: int | None = None,
+        state: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A)."""
+        """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A).
+        `state` (B, state_dim), unnormalised: needed only with policy.subgoal_offset."""
         embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
         check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
-        q_s, memory, mask, _ = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist)
+        q_s, memory, mask, _ = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
         actions = self.policy.sample(q_s, memory, mask, embodiment_id, generator=generator, num_steps=num_steps)
         return self.normalizer.unnormalize_action(actions)
 
@@ -357,12 +367,21 @@ class TriVLA(nn.Module):
         seed: int | None = None,
         embodiment_id: int = 0,
         num_steps: int | None = None,
+        state: np.ndarray | None = None,
     ) -> np.ndarray:
         """System 1: Q_vl (S, D_llm), Q_s (hidden,) and the per-view F_p of `encode_dynamics` (numpy or torch)
-        -> unnormalised float32 (action_horizon, action_dim). `seed` fixes the initial noise."""
+        -> unnormalised float32 (action_horizon, action_dim). `seed` fixes the initial noise. `state`
+        (state_dim,), the unnormalised robot state Q_s was made from: required with
+        policy.subgoal_offset (System 1 then reads the sub-goal from the tcp), ignored otherwise."""
         pol = self.config.policy
         eid = check_embodiment_id("embodiment_id", embodiment_id, pol.num_embodiments)
         q_s_t = self._as_tensor(q_s, "q_s", (pol.hidden_size,))[None]
+        state_t = None
+        if self.policy.subgoal_offset is not None:
+            if state is None:
+                raise ValueError("state is required: this System 1 reads its sub-goal relative to the tool-centre "
+                                 "point (policy.subgoal_offset); pass the robot state Q_s was encoded from")
+            state_t = torch.from_numpy(check_state("state", state, pol.state_dim))[None].to(self.device)
         q_vl_t = None
         if self.vision_language is not None:
             if q_vl is None:
@@ -382,7 +401,7 @@ class TriVLA(nn.Module):
         generator = stream_generator(resolve_seed(seed), _ACTION_STREAM)
         actions = self.sample_actions_batch(
             q_vl_t, None, q_s_t, f_static, f_wrist, torch.tensor([eid], device=self.device),
-            generator=generator, num_steps=num_steps,
+            generator=generator, num_steps=num_steps, state=state_t,
         )
         return actions[0].float().cpu().numpy()
 
@@ -410,6 +429,7 @@ class TriVLA(nn.Module):
             seed=seed,
             embodiment_id=obs["embodiment_id"],
             num_steps=num_steps,
+            state=obs["state"],
         )
 
     # ------------------------------------------------------------------ training losses
@@ -479,7 +499,7 @@ class TriVLA(nn.Module):
                         batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
                     )
         q_s = self.policy.encode_state(self._state_input(state), eid)
-        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist)
+        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
         flow_loss, t = self.policy.loss(
             self.normalizer.normalize_action(actions),
             q_s,

@@ -49,5 +49,6 @@ class PolicySystem(PeriodicInferenceSystem):
             self._model.dynamics is not None and q_p is None
         ):
             return None  # the slower systems have not published yet
-        q_s = self._model.encode_state(np.asarray(self._state.Eval(context)))
-        return self._model.sample_actions(q_vl, q_s, q_p, seed=seed)
+        state = np.asarray(self._state.Eval(context))
+        q_s = self._model.encode_state(state)
+        return self._model.sample_actions(q_vl, q_s, q_p, seed=seed, state=state)

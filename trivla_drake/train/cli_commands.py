@@ -66,6 +66,7 @@ def config_from_args(args: argparse.Namespace):
         grounding_weight=args.grounding_weight,
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
+        subgoal_offset=args.subgoal_offset,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -170,6 +171,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "together; bind trains only the grounding and the Q_vl projection, on the sub-goal "
                              "loss over the approach frames; follow keeps those as --init has them and trains the "
                              "rest of System 1. The two-step recipe is bind, then follow from its checkpoint")
+    parser.add_argument("--subgoal-offset", action="store_true",
+                        help="policy, with --grounding-weight: also give System 1's state token the grounding's "
+                             "sub-goal relative to the tool-centre point (added, starting at zero, when --init "
+                             "has none)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

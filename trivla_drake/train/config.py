@@ -148,6 +148,9 @@ class TrainConfig:
     # Inside a joint run the binding did not form; bind then follow is the two-step recipe
     # (results/instruction_grounding).
     grounding_phase: str = "joint"
+    # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
+    # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
+    subgoal_offset: bool = False
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -223,6 +226,10 @@ class TrainConfig:
         if self.grounding_phase != "joint" and not self.grounding_weight > 0:
             raise ValueError(f"grounding_phase (--grounding-phase) {self.grounding_phase} trains with System 1's "
                              "instruction grounding: it needs grounding_weight (--grounding-weight) > 0")
+        if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
+            raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
+                             "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
+                             "the tcp features (drop --no-tcp-features)")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
         if self.dense_weight and self.stage != "vlm":

@@ -57,12 +57,14 @@ def apply_ablations(
     vl_position_embedding: bool = False,
     dense_classes: int = 0,
     instruction_grounding: bool = False,
+    subgoal_offset: bool = False,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
     it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
     where it has none, with `dense_classes` > 0, a fresh block head on System 2's image tokens
-    where it has none and, with `instruction_grounding`, a fresh instruction grounding in System 1
+    where it has none, with `instruction_grounding`, a fresh instruction grounding in System 1
+    where it has none and, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
     where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
@@ -77,15 +79,16 @@ def apply_ablations(
     vl_position = use_system2 and (cfg.policy.vl_position_embedding or vl_position_embedding)
     classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
     grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
+    offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
-            cfg.policy.instruction_grounding) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding):
+            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
-                                   instruction_grounding=grounding),
+                                   instruction_grounding=grounding, subgoal_offset=offset),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
     )
     tokenizers = {}
@@ -136,7 +139,8 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
     return dataclasses.replace(
         cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
                                         vl_position_embedding=config.vl_position_embedding and config.use_system2,
-                                        instruction_grounding=config.grounding_weight > 0),
+                                        instruction_grounding=config.grounding_weight > 0,
+                                        subgoal_offset=config.subgoal_offset),
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
             dense_classes=_dense_classes(config) if config.use_system2 else 0,
@@ -158,7 +162,7 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
                              f"{where}, which has none: train one with --grounding-phase bind first")
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
-                                config.grounding_weight > 0)
+                                config.grounding_weight > 0, config.subgoal_offset)
         if config.grounding_phase == "bind":
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
