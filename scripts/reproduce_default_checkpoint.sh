@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 9 hours;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 10 hours;
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -114,13 +114,13 @@ if [[ "${GROUNDING:-0}" == 1 ]]; then
   trivla-drake train --stage vlm --out "$RUNS/vlm_norm" --init "$RUNS/video/final" --steps 1000 --threads 2 \
       --image-token-norm
 fi
-# 12. The shipped checkpoint (results/grounded_policy/): System 1 with the instruction grounding, on
-#     a System 2 whose image tokens say where the blocks are, all from the plain recipe's model on the
-#     360 clean episodes. System 2 800 more steps with the dense block-map loss; System 1 2000 steps
-#     with token positions and the grounding (joint), then a fresh grounding bound alone (plain
-#     Adam) and checked, then the rest of System 1 following it 2500 steps; exported without the LLM
-#     layers above the read-out (24.1 MB), and the tables (no ablation arms of its own: those are the
-#     plain recipe's, results/plain_recipe/).
+# 12. The grounded recipe (results/grounded_policy/; shipped until step 14): System 1 with the
+#     instruction grounding, on a System 2 whose image tokens say where the blocks are, all from the
+#     plain recipe's model on the 360 clean episodes. System 2 800 more steps with the dense block-map
+#     loss; System 1 2000 steps with token positions and the grounding (joint), then a fresh grounding
+#     bound alone (plain Adam) and checked, then the rest of System 1 following it 2500 steps;
+#     exported without the LLM layers above the read-out (24.1 MB), and its tables (no ablation arms
+#     of its own: those are the plain recipe's, results/plain_recipe/).
 mkdir -p results/grounded_policy
 trivla-drake train --stage vlm --out "$RUNS/vlm_dense" --init "$PLAIN" --dense-weight 1 --steps 800 --threads 1
 trivla-drake probe --data "$DATA" --checkpoint "$RUNS/vlm_dense/final" > results/grounded_policy/feature_probe.md
@@ -135,10 +135,10 @@ trivla-drake probe --checkpoint "$RUNS/grounded_bind/final" --grounding-scenes 1
     > results/grounded_policy/grounding_check.md
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow" --init "$RUNS/grounded_bind/final" \
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1
-trivla-drake export "$RUNS/grounded_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
-trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
-    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
-# 13. Optional (DART_FOLLOW=1; results/grounded_dart/, not shipped: 0.33 against 0.43): the shipped
+trivla-drake export "$RUNS/grounded_follow/final" --out "$RUNS/grounded_export" --drop-unused-llm-layers
+trivla-drake tables --full "$RUNS/grounded_export" --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results/grounded_policy
+# 13. Optional (DART_FOLLOW=1; results/grounded_dart/, not shipped: 0.33 against 0.43): step 12's
 #     System 1 following its grounding 2500 steps more on the 720 demonstrations with DART recoveries.
 if [[ "${DART_FOLLOW:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_follow_dart" \
@@ -147,3 +147,15 @@ if [[ "${DART_FOLLOW:-0}" == 1 ]]; then
   trivla-drake tables --full "$RUNS/grounded_dart_export" --episodes 2 --chains 3 --workers 2 \
       --latency-tasks rotate_block_left,turn_off_light,unstack_block --out "$RUNS/tables_grounded_dart"
 fi
+# 14. The shipped checkpoint (results/subgoal_offset/): step 12's follow run again from the same bind
+#     run, with the same seed, steps and data, but System 1 also given the grounding's sub-goal seen
+#     from the tool-centre point (--subgoal-offset); exported like step 12 (24.2 MB), its tables, and
+#     where the gripper first closes on lift / stack / place (seeds 1000-1005), beside step 12's model.
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_offset" \
+    --init "$RUNS/grounded_bind/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset
+trivla-drake export "$RUNS/grounded_follow_offset/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+mkdir -p results/subgoal_offset
+trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subgoal_offset/grasps_shipped.md
+trivla-drake probe --checkpoint "$RUNS/grounded_export" --grasp-episodes 6 > results/subgoal_offset/grasps_grounded.md

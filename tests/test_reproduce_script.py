@@ -42,7 +42,7 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
 
 
 def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
-    """models/trivla_cpu: follow <- bind <- joint (grounding, token positions) <- System 2 with the dense
+    """models/trivla_cpu: follow (with the sub-goal offset) <- bind <- joint (grounding, token positions) <- System 2 with the dense
     loss <- the export of the plain recipe's 9000-step run on the DART demonstrations."""
     calls = _dry_run(tmp_path)
 
@@ -60,6 +60,13 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     vlm = run_writing(option(joint, "--init").removesuffix("/final"))
     assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint" for a in (follow, bind, joint)] \
         == ["follow", "bind", "joint"]
+    assert "--subgoal-offset" in follow and not any("--subgoal-offset" in a for a in (bind, joint))
+    # the grounded recipe's own follow run: the same bind run, seed and steps, without the offset
+    grounded = next(argv for argv in calls if argv[0] == "train" and argv is not follow and "--init" in argv
+                    and option(argv, "--init") == option(follow, "--init") and "--grounding-phase" in argv
+                    and option(argv, "--grounding-phase") == "follow")
+    assert "--subgoal-offset" not in grounded
+    assert [option(grounded, k) for k in ("--steps", "--seed", "--data")] == [option(follow, k) for k in ("--steps", "--seed", "--data")]
     assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0 for a in (follow, bind, joint))
     assert option(vlm, "--stage") == "vlm" and float(option(vlm, "--dense-weight")) > 0
     plain_export = run_writing(option(vlm, "--init"))

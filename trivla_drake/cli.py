@@ -160,6 +160,17 @@ def _cmd_probe(args) -> int:
 
     if args.grounding_scenes < 0:
         raise ValueError(f"--grounding-scenes must be >= 0, got {args.grounding_scenes}")
+    if args.grasp_episodes < 0:
+        raise ValueError(f"--grasp-episodes must be >= 0, got {args.grasp_episodes}")
+    if args.grasp_episodes:
+        from trivla_drake.eval.grasp_report import format_grasp_report, grasp_report, grasp_summary
+        from trivla_drake.eval.policies import load_policy
+
+        _set_torch_threads(args.threads)
+        rows = grasp_report(load_policy(args.checkpoint or "trivla"), episodes_per_task=args.grasp_episodes)
+        print(json.dumps({"episodes": [r.to_dict() for r in rows], "summary": grasp_summary(rows)}) if args.json
+              else format_grasp_report(rows))
+        return 0
     if args.grounding_scenes:
         from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
 
@@ -168,7 +179,8 @@ def _cmd_probe(args) -> int:
         print(json.dumps(check.to_dict()) if args.json else format_grounding_check(check))
         return 0
     if args.data is None:
-        raise ValueError("--data is required: the dataset whose features the probes read (or pass --grounding-scenes)")
+        raise ValueError("--data is required: the dataset whose features the probes read (or pass "
+                         "--grounding-scenes or --grasp-episodes)")
     if args.episodes is not None and args.episodes < 10:
         raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
     if args.attention_steps < 0:
@@ -259,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     probe = commands.add_parser("probe", help="linear probes: how well System 2's and System 3's features "
                                 "locate the blocks (held-out R^2), with raw pixels as reference")
-    probe.add_argument("--data", default=None, help="dataset written by `collect` (required unless --grounding-scenes)")
+    probe.add_argument("--data", default=None, help="dataset written by `collect` (required unless --grounding-scenes or --grasp-episodes)")
     probe.add_argument("--checkpoint", default=None, help="TriVLA checkpoint (default: models/trivla_cpu)")
     probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
     probe.add_argument("--feature-noise", choices=("fixed", "random"), default=None,
@@ -269,6 +281,10 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--grounding-scenes", type=int, default=0,
                        help="instead: check System 1's instruction grounding on N unseen lift_block scenes "
                             "(is its sub-goal nearest the block each colour word names?)")
+    probe.add_argument("--grasp-episodes", type=int, default=0,
+                       help="instead: N unseen episodes each of lift, stack and place in bowl; where the gripper "
+                            "first closes against the named block and the grounding's sub-goal (--checkpoint may "
+                            "also be oracle)")
     probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     probe.set_defaults(run=_cmd_probe)
