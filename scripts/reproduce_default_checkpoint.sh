@@ -159,3 +159,10 @@ trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2
 mkdir -p results/subgoal_offset
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subgoal_offset/grasps_shipped.md
 trivla-drake probe --checkpoint "$RUNS/grounded_export" --grasp-episodes 6 > results/subgoal_offset/grasps_grounded.md
+mkdir -p results/subgoal_offset/more_seeds  # three more evaluation seeds for both (no chains)
+for seed in 1003 1004 1005; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/subgoal_offset/more_seeds/shipped_seed$seed.json"
+  trivla-drake evaluate --policy "$RUNS/grounded_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/subgoal_offset/more_seeds/grounded_seed$seed.json"
+done
