@@ -40,11 +40,12 @@ def test_a_grounded_model_gets_its_subgoal_recorded_per_chunk(tmp_path, capsys):
 
     config = make_config("tiny")
     model = TriVLA(dataclasses.replace(config, policy=dataclasses.replace(config.policy, instruction_grounding=True)))
-    recorder = _SubgoalRecorder(TriVLAHarnessPolicy(model.eval()), grounded=True)
-    (row,) = grasp_report(recorder._policy, episodes_per_task=1, tasks=("stack_block",))
+    policy = TriVLAHarnessPolicy(model.eval())
+    (row,) = grasp_report(policy, episodes_per_task=1, tasks=("stack_block",))
     assert row.first_subgoal_to_block_m is not None and 0 <= row.first_subgoal_to_block_m < 2.0
     assert (row.close_step is None) == (row.close_to_subgoal_m is None)
     # chunks are looked up by the step they start at
+    recorder = _SubgoalRecorder(policy, grounded=True)
     recorder.reset("lift the red block", 0)
     recorder.chunks.extend([(0, np.zeros(3)), (10, np.ones(3))])
     assert recorder.subgoal_at(0)[0] == 0 and recorder.subgoal_at(9)[0] == 0 and recorder.subgoal_at(10)[0] == 1
@@ -61,7 +62,7 @@ def test_bad_settings_are_refused_naming_the_field():
 
 
 def test_summary_of_episodes_that_never_close():
-    row = GraspRow("lift_block", 1000, "lift the red block", False, None, None, None, None, 0.04, None, None)
+    row = GraspRow("lift_block", 1000, "lift the red block", False, first_subgoal_to_block_m=0.04)
     summary = grasp_summary([row])
     assert summary["closed"] == 0 and summary["median_close_to_block_cm"] is None
     assert summary["median_first_subgoal_to_block_cm"] == 4.0

@@ -27,13 +27,13 @@ class GraspRow:
     seed: int
     instruction: str
     success: bool
-    close_step: int | None  # the first control step commanding the gripper closed
-    close_to_block_m: float | None  # tool-centre point to the named block's centre when it closes
-    nearest_block_named: bool | None  # the named block is the nearest one when it closes
-    close_height_m: float | None  # the tool-centre point's height when it closes
-    first_subgoal_to_block_m: float | None  # the grounding's sub-goal on the first observation
-    close_subgoal_to_block_m: float | None  # ... on the observation the closing chunk was planned from
-    close_to_subgoal_m: float | None  # tool-centre point to that sub-goal when it closes
+    close_step: int | None = None  # the first control step commanding the gripper closed
+    close_to_block_m: float | None = None  # tool-centre point to the named block's centre when it closes
+    nearest_block_named: bool | None = None  # the named block is the nearest one when it closes
+    close_height_m: float | None = None  # the tool-centre point's height when it closes
+    first_subgoal_to_block_m: float | None = None  # the grounding's sub-goal on the first observation
+    close_subgoal_to_block_m: float | None = None  # ... on the observation the closing chunk was planned from
+    close_to_subgoal_m: float | None = None  # tool-centre point to that sub-goal when it closes
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -41,7 +41,8 @@ class GraspRow:
 
 class _SubgoalRecorder:
     """Wraps a TriVLA harness policy: passes every call through and records, per chunk, the step it
-    starts at and the grounding's sub-goal [m] for the same observation."""
+    starts at and the grounding's sub-goal [m] for the same observation (a second System 2 pass per
+    chunk: a diagnostic's cost, not the policy's)."""
 
     def __init__(self, policy, grounded: bool) -> None:
         self._policy, self._grounded = policy, grounded
@@ -95,14 +96,18 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
         for k in range(episodes_per_task):
             episode_seed = seed + k
             result = run_episode(task, episode_seed, recorder, keep_trajectory=True)
-            env = shared_env(224)
-            spec, instance = sample_task_instance(get_task(task), np.random.default_rng(episode_seed), env.layout())
+            # The initial blocks: the scene run_episode drew from the same seed (the trajectory keeps no scene).
+            spec, instance = sample_task_instance(get_task(task), np.random.default_rng(episode_seed),
+                                                  shared_env(224).layout())
+            if instance.instruction != result.instruction:
+                raise RuntimeError(f"{task} seed {episode_seed}: the scene drawn again is not the episode's "
+                                   f"({instance.instruction!r} against {result.instruction!r})")
             blocks = {colour: np.asarray(b.position) for colour, b in spec.blocks.items()}
-            named = blocks[instance.params[0]]
+            named_colour = result.params[0]
+            named = blocks[named_colour]
             actions = np.asarray(result.trajectory.actions).reshape(-1, 7)
             closed = np.flatnonzero(actions[:, 6] <= 0.0)
-            row = GraspRow(task, episode_seed, result.instruction, bool(result.success),
-                           None, None, None, None, None, None, None)
+            row = GraspRow(task, episode_seed, result.instruction, bool(result.success))
             first_subgoal = recorder.chunks[0][1] if recorder.chunks else None
             if first_subgoal is not None:
                 row.first_subgoal_to_block_m = _xy(first_subgoal, named)
@@ -111,8 +116,8 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
                 tcp = np.asarray(result.trajectory.tcp_poses[step])[:3]
                 distances = {colour: _xy(tcp, position) for colour, position in blocks.items()}
                 row.close_step = step
-                row.close_to_block_m = distances[instance.params[0]]
-                row.nearest_block_named = min(distances, key=distances.get) == instance.params[0]
+                row.close_to_block_m = distances[named_colour]
+                row.nearest_block_named = min(distances, key=distances.get) == named_colour
                 row.close_height_m = float(tcp[2])
                 subgoal = recorder.subgoal_at(step)
                 if subgoal is not None:
@@ -120,11 +125,6 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
                     row.close_to_subgoal_m = _xy(tcp, subgoal)
             rows.append(row)
     return rows
-
-
-def _median_cm(values: list[float | None]) -> str:
-    kept = [v for v in values if v is not None]
-    return f"{100 * float(np.median(kept)):.1f}" if kept else "-"
 
 
 def grasp_summary(rows: list[GraspRow]) -> dict:
@@ -166,13 +166,17 @@ def format_grasp_report(rows: list[GraspRow]) -> str:
                      f"{cm(r.close_height_m)} | {cm(r.first_subgoal_to_block_m)} / {cm(r.close_subgoal_to_block_m)} | "
                      f"{cm(r.close_to_subgoal_m)} |")
     s = grasp_summary(rows)
+
+    def median(key):
+        return "-" if s[key] is None else f"{s[key]:.1f}"
+
     lines.append("")
     lines.append(
         f"{s['successes']}/{s['episodes']} succeed; the gripper closes in {s['closed']}, nearest the named block in "
         f"{s['nearest_block_named']}, within 1.5 cm of it in {s['closed_within_1_5_cm']} and within 3 cm in "
-        f"{s['closed_within_3_cm']}; medians: {_median_cm([r.close_to_block_m for r in rows])} cm from the block "
-        f"at {_median_cm([r.close_height_m for r in rows])} cm height; the grounding's sub-goal "
-        f"{_median_cm([r.first_subgoal_to_block_m for r in rows])} cm from the block first, "
-        f"{_median_cm([r.close_subgoal_to_block_m for r in rows])} cm when the closing chunk was planned, "
-        f"the gripper {_median_cm([r.close_to_subgoal_m for r in rows])} cm from that sub-goal")
+        f"{s['closed_within_3_cm']}; medians: {median('median_close_to_block_cm')} cm from the block "
+        f"at {median('median_close_height_cm')} cm height; the grounding's sub-goal "
+        f"{median('median_first_subgoal_to_block_cm')} cm from the block first, "
+        f"{median('median_close_subgoal_to_block_cm')} cm when the closing chunk was planned, "
+        f"the gripper {median('median_close_to_subgoal_cm')} cm from that sub-goal")
     return "\n".join(lines)

@@ -251,7 +251,8 @@ class TriVLA(nn.Module):
         if self.policy.subgoal_offset is not None:
             if state is None:
                 raise ValueError("state is required: this System 1 reads its sub-goal relative to the tool-centre "
-                                 "point (policy.subgoal_offset), which it computes from the robot state")
+                                 "point (policy.subgoal_offset), which it computes from the robot state Q_s was "
+                                 "encoded from")
             tcp_position = self.tcp_features(state)[:, :3].to(q_s.dtype)
         return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
                                       tcp_position)
@@ -372,16 +373,11 @@ class TriVLA(nn.Module):
         """System 1: Q_vl (S, D_llm), Q_s (hidden,) and the per-view F_p of `encode_dynamics` (numpy or torch)
         -> unnormalised float32 (action_horizon, action_dim). `seed` fixes the initial noise. `state`
         (state_dim,), the unnormalised robot state Q_s was made from: required with
-        policy.subgoal_offset (System 1 then reads the sub-goal from the tcp), ignored otherwise."""
+        policy.subgoal_offset (System 1 then reads the sub-goal from the tcp), unused otherwise."""
         pol = self.config.policy
         eid = check_embodiment_id("embodiment_id", embodiment_id, pol.num_embodiments)
         q_s_t = self._as_tensor(q_s, "q_s", (pol.hidden_size,))[None]
-        state_t = None
-        if self.policy.subgoal_offset is not None:
-            if state is None:
-                raise ValueError("state is required: this System 1 reads its sub-goal relative to the tool-centre "
-                                 "point (policy.subgoal_offset); pass the robot state Q_s was encoded from")
-            state_t = torch.from_numpy(check_state("state", state, pol.state_dim))[None].to(self.device)
+        state_t = None if state is None else torch.from_numpy(check_state("state", state, pol.state_dim))[None].to(self.device)
         q_vl_t = None
         if self.vision_language is not None:
             if q_vl is None:
