@@ -147,22 +147,72 @@ if [[ "${DART_FOLLOW:-0}" == 1 ]]; then
   trivla-drake tables --full "$RUNS/grounded_dart_export" --episodes 2 --chains 3 --workers 2 \
       --latency-tasks rotate_block_left,turn_off_light,unstack_block --out "$RUNS/tables_grounded_dart"
 fi
-# 14. The shipped checkpoint (results/subgoal_offset/): step 12's follow run again from the same bind
+# 14. results/subgoal_offset/ (shipped until step 15): step 12's follow run again from the same bind
 #     run, with the same seed, steps and data, but System 1 also given the grounding's sub-goal seen
 #     from the tool-centre point (--subgoal-offset); exported like step 12 (24.2 MB), its tables, and
 #     where the gripper first closes on lift / stack / place (seeds 1000-1005), beside step 12's model.
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_offset" \
     --init "$RUNS/grounded_bind/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset
-trivla-drake export "$RUNS/grounded_follow_offset/final" --out models/trivla_cpu --drop-unused-llm-layers
-trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
-    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+trivla-drake export "$RUNS/grounded_follow_offset/final" --out "$RUNS/offset_export" --drop-unused-llm-layers
 mkdir -p results/subgoal_offset
-trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subgoal_offset/grasps_shipped.md
+trivla-drake tables --full "$RUNS/offset_export" --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results/subgoal_offset
+trivla-drake probe --checkpoint "$RUNS/offset_export" --grasp-episodes 6 > results/subgoal_offset/grasps_shipped.md
 trivla-drake probe --checkpoint "$RUNS/grounded_export" --grasp-episodes 6 > results/subgoal_offset/grasps_grounded.md
 mkdir -p results/subgoal_offset/more_seeds  # three more evaluation seeds for both (no chains)
 for seed in 1003 1004 1005; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+  trivla-drake evaluate --policy "$RUNS/offset_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/subgoal_offset/more_seeds/shipped_seed$seed.json"
   trivla-drake evaluate --policy "$RUNS/grounded_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/subgoal_offset/more_seeds/grounded_seed$seed.json"
 done
+# 15. The shipped checkpoint (results/grounding_curriculum/): step 12's bind run bound 1500 steps more
+#     on the 720 demonstrations of DART_DATA, going on from its grounding (--keep-grounding: a fresh
+#     one did not bind there), then step 14's follow run from it; the grounding checks of both bind
+#     runs (first frame and along the oracle's approach), the export, its tables and grasps.
+mkdir -p results/grounding_curriculum
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_bind_curriculum" \
+    --init "$RUNS/grounded_bind/final" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 \
+    --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+for run in grounded_bind grounded_bind_curriculum; do
+  trivla-drake probe --checkpoint "$RUNS/$run/final" --grounding-scenes 20 --threads 2 \
+      > "results/grounding_curriculum/grounding_check_$run.md"
+done
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_curriculum" \
+    --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
+    --subgoal-offset
+trivla-drake export "$RUNS/grounded_follow_curriculum/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/grounding_curriculum/grasps_shipped.md
+for seed in 1003 1004 1005; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/grounding_curriculum/shipped_seed$seed.json"
+done
+# 16. Optional (DETOURS=1; results/grounding_curriculum/, a grounding check only): a grounding that also
+#     reads the tool-centre point (--grounding-reads-tcp), bound on the 360 clean demonstrations plus 120
+#     whose oracle first hovers above two blocks the instruction does not name (lift, place, stack,
+#     unstack, rotate left / right; 20 each), going on from step 15's grounding; the same without the
+#     tcp path; and, to show the shortcut the detours are there for, a tcp-reading grounding bound
+#     fresh on the 360 clean ones alone.
+DETOUR_DATA=${DETOUR_DATA:-$DATA-detour}
+if [[ "${DETOURS:-0}" == 1 ]]; then
+  [[ -d "$DETOUR_DATA" ]] || cp -r "$DATA" "$DETOUR_DATA"
+  trivla-drake collect --out "$DETOUR_DATA" --episodes-per-task 50 --detours 2 \
+      --tasks lift_block place_in_bowl stack_block unstack_block rotate_block_left rotate_block_right
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DETOUR_DATA" --out "$RUNS/grounded_bind_detour_tcp" \
+      --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase bind --keep-grounding --grounding-reads-tcp \
+      --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DETOUR_DATA" --out "$RUNS/bind_detour_no_tcp" \
+      --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase bind --keep-grounding \
+      --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/bind_tcp_no_detours" \
+      --init "$RUNS/grounded_joint/final" --grounding-phase bind --grounding-reads-tcp --lr 2e-3 --warmup-steps 1 \
+      --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1200 --batch-size 64
+  trivla-drake probe --checkpoint "$RUNS/grounded_bind_detour_tcp/final" --grounding-scenes 20 --threads 2 \
+      > results/grounding_curriculum/grounding_check_grounded_bind_detour_tcp.md
+  trivla-drake probe --checkpoint "$RUNS/bind_detour_no_tcp/final" --grounding-scenes 20 --threads 2 \
+      > results/grounding_curriculum/grounding_check_bind_detour_no_tcp.md
+  trivla-drake probe --checkpoint "$RUNS/bind_tcp_no_detours/final" --grounding-scenes 20 --threads 2 \
+      > results/grounding_curriculum/grounding_check_bind_tcp_no_detours.md
+fi

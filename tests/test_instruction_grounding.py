@@ -235,6 +235,15 @@ def test_grounding_check_asks_every_colour_in_unseen_scenes_and_names_bad_input(
     assert (check.scenes, check.queries, check.chance) == (1, 3, pytest.approx(1 / 3))
     assert 0 <= check.hits <= 3 and 0 <= check.median_error_m < 1.0
     assert "1 unseen lift_block scenes" in format_grounding_check(check)
+    # along the oracle's approach: every colour asked, in every band, the near one included (the oracle
+    # reaches the block), twice as many queries for the other blocks as for the one approached
+    assert set(check.approach) == {"far", "mid", "near"}
+    for band in check.approach.values():
+        assert band["other"]["queries"] == 2 * band["approached"]["queries"]
+        assert all(0 <= row["hits"] <= row["queries"] for row in band.values())
+    assert check.approach["near"]["approached"]["queries"] >= 1
+    assert 0 <= check.approach["near"]["approached"]["median_error_m"] < 1.0
+    assert "along the oracle's approach" in format_grounding_check(check)
     with pytest.raises(ValueError, match="scenes must be >= 1"):
         grounding_check(model, scenes=0)
     plain = TriVLA(make_config("tiny")).eval()
@@ -249,3 +258,18 @@ def test_grounding_check_asks_every_colour_in_unseen_scenes_and_names_bad_input(
     assert "--data is required" in capsys.readouterr().err
     assert main(["probe", "--checkpoint", str(tmp_path / "grounded"), "--grounding-scenes", "-1"]) == 2
     assert "--grounding-scenes must be >= 0" in capsys.readouterr().err
+
+
+def test_the_approach_check_raises_what_the_model_raises(monkeypatch):
+    """The episode runner turns a policy's exception into a failed episode; the check must not turn a
+    broken grounding into a measurement."""
+    from trivla_drake.eval.grounding_check import approach_errors
+
+    model = _grounded_model().eval()
+
+    def broken(*args):
+        raise RuntimeError("broken grounding")
+
+    monkeypatch.setattr(model, "predict_subgoal", broken)
+    with pytest.raises(RuntimeError, match="broken grounding"):
+        approach_errors(model, scenes=1, seed=1000)

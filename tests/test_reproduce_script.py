@@ -26,7 +26,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     (work / "data").mkdir()
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "DATA": "data/sim",
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
-           "DART_FOLLOW": "1"}
+           "DART_FOLLOW": "1", "DETOURS": "1"}
     (work / "data" / "sim").mkdir()
     subprocess.run(["bash", str(SCRIPT)], cwd=work, env=env, check=True, capture_output=True, text=True)
     return [shlex.split(line) for line in calls.read_text().splitlines()]
@@ -42,7 +42,8 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
 
 
 def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
-    """models/trivla_cpu: follow (with the sub-goal offset) <- bind <- joint (grounding, token positions) <- System 2 with the dense
+    """models/trivla_cpu: follow (with the sub-goal offset) <- bind further on the DART demonstrations
+    (keeping the grounding) <- bind <- joint (grounding, token positions) <- System 2 with the dense
     loss <- the export of the plain recipe's 9000-step run on the DART demonstrations."""
     calls = _dry_run(tmp_path)
 
@@ -55,19 +56,31 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
     assert "--drop-unused-llm-layers" in export
     follow = run_writing(export[1].removesuffix("/final"))
-    bind = run_writing(option(follow, "--init").removesuffix("/final"))
+    curriculum = run_writing(option(follow, "--init").removesuffix("/final"))
+    bind = run_writing(option(curriculum, "--init").removesuffix("/final"))
     joint = run_writing(option(bind, "--init").removesuffix("/final"))
     vlm = run_writing(option(joint, "--init").removesuffix("/final"))
-    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint" for a in (follow, bind, joint)] \
-        == ["follow", "bind", "joint"]
-    assert "--subgoal-offset" in follow and not any("--subgoal-offset" in a for a in (bind, joint))
-    # the grounded recipe's own follow run: the same bind run, seed and steps, without the offset
-    grounded = next(argv for argv in calls if argv[0] == "train" and argv is not follow and "--init" in argv
-                    and option(argv, "--init") == option(follow, "--init") and "--grounding-phase" in argv
-                    and option(argv, "--grounding-phase") == "follow")
-    assert "--subgoal-offset" not in grounded
-    assert [option(grounded, k) for k in ("--steps", "--seed", "--data")] == [option(follow, k) for k in ("--steps", "--seed", "--data")]
-    assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0 for a in (follow, bind, joint))
+    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint"
+            for a in (follow, curriculum, bind, joint)] == ["follow", "bind", "bind", "joint"]
+    assert "--keep-grounding" in curriculum and "--keep-grounding" not in bind
+    dart = next(argv for argv in calls if argv[0] == "collect" and "--action-noise" in argv)
+    assert option(curriculum, "--data") == option(dart, "--out") != option(bind, "--data")
+    assert "--subgoal-offset" in follow and not any("--subgoal-offset" in a for a in (curriculum, bind, joint))
+    assert not any("--grounding-reads-tcp" in a for a in (follow, curriculum, bind, joint))
+
+    def follows_of(init):
+        return [argv for argv in calls if argv[0] == "train" and "--init" in argv and option(argv, "--init") == init
+                and "--grounding-phase" in argv and option(argv, "--grounding-phase") == "follow"]
+
+    # step 12 (the grounded recipe) and step 14 (+ offset) follow step 12's bind run; step 15 differs
+    # from step 14 only in its --init, step 14 from step 12 only in --subgoal-offset
+    grounded, offset = sorted(follows_of(option(curriculum, "--init")), key=lambda a: "--subgoal-offset" in a)
+    assert "--subgoal-offset" not in grounded and "--subgoal-offset" in offset
+    keys = ("--steps", "--seed", "--data", "--lr", "--out", "--init")
+    assert {k for k in keys if option(offset, k) != option(grounded, k)} == {"--out"}
+    assert {k for k in keys if option(follow, k) != option(offset, k)} == {"--out", "--init"}
+    assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0
+               for a in (follow, curriculum, bind, joint))
     assert option(vlm, "--stage") == "vlm" and float(option(vlm, "--dense-weight")) > 0
     plain_export = run_writing(option(vlm, "--init"))
     second = run_writing(plain_export[1].removesuffix("/final"))

@@ -4,6 +4,7 @@ normalisation and computes System 2/3 features once."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -336,6 +337,16 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
     rebound = build_model(again, None).policy.grounding.state_dict()
     assert not torch.equal(rebound["compose.weight"], after.policy.grounding.compose.weight)
     assert torch.equal(rebound["compose.weight"], build_model(again, None).policy.grounding.compose.weight)
+    # --keep-grounding: a bind run goes on from --init's grounding (a curriculum); refused without one
+    kept = build_model(dataclasses.replace(again, keep_grounding=True), None).policy.grounding.state_dict()
+    assert all(torch.equal(kept[k], v) for k, v in after.policy.grounding.state_dict().items())
+    with pytest.raises(ValueError, match="keep_grounding.*which has none"):
+        build_model(dataclasses.replace(again, init=init, keep_grounding=True), None)
+    with pytest.raises(ValueError, match="grounding_reads_tcp.*follow run keeps.*bind one with"):
+        build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_tcp=True), None)
+    for bad in (dict(grounding_phase="follow"), dict(init=None)):
+        with pytest.raises(ValueError, match=r"keep_grounding \(--keep-grounding\).*bind and --init"):
+            dataclasses.replace(again, keep_grounding=True, **bad).validate()
     other = write_synthetic_dataset(tmp_path / "other", episodes=3, length=24, tcp_pose=True, seed=1)
     follow = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "follow"), init=bound["final_checkpoint"],
                                steps=3, grounding_weight=1.0, grounding_phase="follow", **runs["common"]))

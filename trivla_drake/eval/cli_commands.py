@@ -45,6 +45,7 @@ def run_collect(args: argparse.Namespace) -> int:
             workers=args.workers,
             image_size=args.image_size,
             action_noise=args.action_noise,
+            detours=args.detours,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -115,6 +116,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
         help="disturb the applied actions in short bursts, this many times the default burst rate "
              "(DART; 0 = clean demonstrations, the default; 1 = a burst about every 17 steps). The recorded "
              "actions stay the oracle's; episodes started from now on get this setting.",
+    )
+    parser.add_argument(
+        "--detours", type=int, default=0,
+        help="before its task the oracle visits this many places just above blocks the instruction does not "
+             "name (data for binding the instruction grounding, not for imitation; default 0). Episodes "
+             "started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")

@@ -8,6 +8,8 @@ and running the same command again resumes: attempts already committed or failed
 
 With `action_noise` > 0 the applied actions are disturbed in bursts (DART, eval/action_noise.py);
 the recorded actions stay the oracle's and each episode's metadata lists its disturbed frames.
+With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
+name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
+    DETOURS_KEY,
     EPISODE_TASK_KEY,
     PERTURBED_FRAMES_KEY,
     LeRobotWriter,
@@ -67,6 +70,10 @@ class CollectConfig:
     # Perturbation bursts on the applied actions, as a multiple of the default burst rate (DART, see
     # eval/action_noise.py); 0 = clean demonstrations. Recorded per episode, so a resumed run may change it.
     action_noise: float = 0.0
+    # Places just above blocks the instruction does not name that the oracle visits before its task
+    # (motions.detours): data for binding the instruction grounding, not for imitation. Recorded per
+    # episode (DETOURS_KEY), so a resumed run may change it.
+    detours: int = 0
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -78,6 +85,8 @@ class CollectConfig:
         if not self.tasks:
             raise ValueError("--tasks is empty")
         self.disturbance()  # validates --action-noise
+        if isinstance(self.detours, bool) or not isinstance(self.detours, int) or self.detours < 0:
+            raise ValueError(f"--detours must be an integer >= 0, got {self.detours!r}")
         for name in self.tasks:
             get_task(name)
 
@@ -107,7 +116,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
 
     seed = derive_seed(config.seed, task, attempt)
     result = run_episode(
-        task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True,
+        task, seed, OraclePolicy(detours=config.detours), image_size=config.image_size, keep_trajectory=True,
         action_noise=config.disturbance(),
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
@@ -206,6 +215,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                             if config.action_noise
                             else {}
                         ),
+                        **({DETOURS_KEY: config.detours} if config.detours else {}),
                     },
                 )
                 done[task].add(attempt)

@@ -59,7 +59,7 @@ class _SubgoalRecorder:
         subgoal = None
         if self._grounded:
             subgoal = self._policy.model.predict_subgoal(
-                observation["static_rgb"], observation["wrist_rgb"], observation["instruction"])
+                observation["static_rgb"], observation["wrist_rgb"], observation["instruction"], observation["state"])
         rows = np.atleast_2d(self._policy.act(observation))
         self.chunks.append((self._steps, subgoal))
         self._steps += len(rows)

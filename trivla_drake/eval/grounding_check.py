@@ -5,6 +5,14 @@ For each of a few unseen scenes of `lift_block`, the instruction is asked once p
 a grasp of the named block) should lie nearest to the block named, and close to it. A grounding
 that ignores the colour word scores about 1/3, the share of one block among three, however close
 it comes to *some* block (results/instruction_grounding).
+
+Then the same scenes along the expert's approach: the oracle drives the arm to the grasp of the
+named block, and every few steps until the gripper closes the grounding is asked again for every
+colour. The errors are reported by how far the tool-centre point still is from the block approached:
+a grasp needs the sub-goal within about 1.5 cm when the gripper is near. The expert approaches from
+straight above, so a grounding could score well on the block approached by copying the tcp's x-y;
+the other colours' queries catch that (the gripper is then far from the block asked for, as a
+learned policy's gripper is when it heads the wrong way).
 """
 
 from __future__ import annotations
@@ -16,6 +24,9 @@ import numpy as np
 from trivla_drake.tasks.scene import BLOCK_COLORS
 
 CHECK_TASK = "lift_block"  # its first gripper event is the grasp of the block the instruction names
+# Bands of the tcp's 3-D distance to the named block [m] along the approach: (name, lower, upper).
+APPROACH_BANDS = (("far", 0.15, float("inf")), ("mid", 0.05, 0.15), ("near", 0.0, 0.05))
+APPROACH_EVERY = 4  # control steps between two queries along the approach
 
 
 @dataclass
@@ -28,15 +39,77 @@ class GroundingCheck:
     hits: int
     median_error_m: float
     chance: float
+    # Along the oracle's approach (None when not measured), per band of the tcp's distance to the block
+    # approached (APPROACH_BANDS): queries, hits and median x-y error [m] (None: no query) when asking
+    # for the block approached ("approached") and for the other blocks ("other").
+    approach: dict[str, dict[str, dict]] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def grounding_check(model, scenes: int = 10, seed: int = 1000) -> GroundingCheck:
+class _ApproachProbe:
+    """A harness policy: the oracle drives, and until its gripper first closes the grounding is asked
+    for every block colour every `every` steps. Records (tcp distance to the block approached [m],
+    whether the colour asked is that block's, x-y error to the block asked [m], whether the sub-goal
+    is nearest the block asked). An error inside the model is kept and raised after the episode (the
+    runner would count it as the episode's failure and go on)."""
+
+    name, uses_images, privileged = "oracle+grounding", True, True
+
+    def __init__(self, model, every: int) -> None:
+        from trivla_drake.tasks.oracle import OraclePolicy
+
+        self._model, self._every, self._oracle = model, every, OraclePolicy()
+        self.records: list[tuple[float, bool, float, bool]] = []
+        self.error: Exception | None = None
+        self._steps, self._closed = 0, False
+
+    def reset(self, instruction: str, seed: int) -> None:
+        self._oracle.reset(instruction, seed)
+        self._steps, self._closed = 0, False
+
+    def act(self, observation: dict) -> np.ndarray:
+        action = np.asarray(self._oracle.act(observation))
+        if not self._closed and self._steps % self._every == 0 and self.error is None:
+            try:
+                named, scene = observation["privileged"]["task"].params[0], observation["privileged"]["scene"]
+                blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
+                reach = float(np.linalg.norm(np.asarray(observation["tcp_pose"])[:3, 3] - blocks[named]))
+                for colour in BLOCK_COLORS:
+                    subgoal = self._model.predict_subgoal(
+                        observation["static_rgb"], observation["wrist_rgb"],
+                        observation["instruction"].replace(named, colour), observation["state"])
+                    distance = {c: float(np.linalg.norm((subgoal - p)[:2])) for c, p in blocks.items()}
+                    self.records.append((reach, colour == named, distance[colour],
+                                         min(distance, key=distance.get) == colour))
+            except Exception as error:  # noqa: BLE001 - raised by approach_errors after the episode
+                self.error = error
+        self._closed = self._closed or float(action[6]) <= 0.0
+        self._steps += 1
+        return action
+
+
+def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY) -> list[tuple[float, bool, float, bool]]:
+    """Every `every` steps of the oracle's approach, until it first closes the gripper, in `scenes`
+    lift_block scenes from `seed` on, one record per block colour asked: (tcp distance to the block
+    approached [m], asked for that block, x-y error of the sub-goal to the block asked [m], the
+    sub-goal nearest the block asked)."""
+    from trivla_drake.eval.episode import run_episode
+
+    probe = _ApproachProbe(model, every)
+    for k in range(scenes):
+        run_episode(CHECK_TASK, seed + k, probe)
+        if probe.error is not None:
+            raise probe.error
+    return probe.records
+
+
+def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = True) -> GroundingCheck:
     """Asks `model`'s grounding (a TriVLA with `policy.instruction_grounding`) for every block colour
     in `scenes` scenes of lift_block drawn from seeds `seed`, `seed` + 1, ... (1000 on: scenes the
-    demonstrations, collected from seed 0, never showed)."""
+    demonstrations, collected from seed 0, never showed), and with `approach`, along the oracle's
+    approach in the same scenes."""
     from trivla_drake.eval.episode import shared_env
     from trivla_drake.tasks.suite import get_task, sample_task_instance
 
@@ -54,16 +127,45 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000) -> GroundingCheck
         scene = env.scene()
         for colour in BLOCK_COLORS:
             instruction = instance.instruction.replace(named, colour)
-            subgoal = model.predict_subgoal(observation["static_rgb"], observation["wrist_rgb"], instruction)
+            subgoal = model.predict_subgoal(observation["static_rgb"], observation["wrist_rgb"], instruction,
+                                            observation["state"])
             distance = {c: float(np.linalg.norm((subgoal - scene.block_position(c))[:2])) for c in BLOCK_COLORS}
             hits += min(distance, key=distance.get) == colour
             errors.append(distance[colour])
-    return GroundingCheck(scenes=scenes, queries=len(errors), hits=hits,
-                          median_error_m=float(np.median(errors)), chance=1.0 / len(BLOCK_COLORS))
+    check = GroundingCheck(scenes=scenes, queries=len(errors), hits=hits,
+                           median_error_m=float(np.median(errors)), chance=1.0 / len(BLOCK_COLORS))
+    if approach:
+        records = np.asarray(approach_errors(model, scenes, seed), dtype=float).reshape(-1, 4)
+        check.approach = {}
+        for band, low, high in APPROACH_BANDS:
+            inside = records[(records[:, 0] >= low) & (records[:, 0] < high)]
+            check.approach[band] = {}
+            for which, rows in (("approached", inside[inside[:, 1] == 1]), ("other", inside[inside[:, 1] == 0])):
+                check.approach[band][which] = {
+                    "queries": int(len(rows)), "hits": int(rows[:, 3].sum()),
+                    "median_error_m": float(np.median(rows[:, 2])) if len(rows) else None}
+    return check
 
 
 def format_grounding_check(check: GroundingCheck) -> str:
     """One line for the terminal."""
     return (f"instruction grounding on {check.scenes} unseen lift_block scenes: the sub-goal is nearest the "
             f"named block in {check.hits}/{check.queries} queries ({check.hits / check.queries:.2f}; a colour-blind "
-            f"guess {check.chance:.2f}), median {100 * check.median_error_m:.1f} cm from it")
+            f"guess {check.chance:.2f}), median {100 * check.median_error_m:.1f} cm from it"
+            + _format_approach(check))
+
+
+def _format_approach(check: GroundingCheck) -> str:
+    if check.approach is None:
+        return ""
+    lines = ["", "along the oracle's approach (tcp distance to the block approached: asking for that block / "
+                 "for another; nearest the block asked, median x-y error):"]
+    for band, low, high in APPROACH_BANDS:
+        where = f"> {100 * low:.0f} cm" if high == float("inf") else f"{100 * low:.0f}-{100 * high:.0f} cm"
+        parts = []
+        for which in ("approached", "other"):
+            row = check.approach[band][which]
+            error = "-" if row["median_error_m"] is None else f"{100 * row['median_error_m']:.1f} cm"
+            parts.append(f"{row['hits']}/{row['queries']}, {error}")
+        lines.append(f"  {band} ({where}): {parts[0]} / {parts[1]}")
+    return "\n".join(lines)

@@ -212,6 +212,12 @@ class PolicyConfig:
     # tcp_features; System 1 then needs the robot state with Q_s (`TriVLA.sample_actions(state=...)`).
     # Off in checkpoints saved before it existed; `train --stage policy --subgoal-offset` turns it on.
     subgoal_offset: bool = False
+    # The instruction grounding also reads the tool-centre point's features (position and orientation),
+    # so it can place the sub-goal from the wrist view, as an offset from the gripper, and not only from
+    # the static view's coarse tokens. Needs instruction_grounding and tcp_features; the grounding then
+    # needs the robot state (`TriVLA.predict_subgoal(..., state=)`). Off in checkpoints saved before it
+    # existed; `train --stage policy --grounding-phase bind --grounding-reads-tcp` turns it on.
+    grounding_reads_tcp: bool = False
 
 
 @dataclass
@@ -293,6 +299,9 @@ def validate_config(config: TriVLAConfig) -> None:
         )
     if pol.instruction_grounding and not config.use_system2:
         raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
+    if pol.grounding_reads_tcp and not (pol.instruction_grounding and pol.tcp_features):
+        raise ValueError("policy.grounding_reads_tcp gives the instruction grounding the tcp features: it needs "
+                         "policy.instruction_grounding and policy.tcp_features")
     if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "
                          "policy.instruction_grounding and policy.tcp_features")

@@ -30,8 +30,9 @@ class InstructionGrounding(nn.Module):
     A mean of the instruction's tokens as one query would dilute the one word that names the object
     among the others (it did: its sub-goal hardly changed with the colour word)."""
 
-    def __init__(self, dim: int, num_heads: int) -> None:
+    def __init__(self, dim: int, num_heads: int, tcp_dim: int = 0) -> None:
         super().__init__()
+        self.tcp_dim = tcp_dim
         # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
         # over 5 neighbouring tokens (the longest colour word) composes them.
         self.compose = nn.Conv1d(dim, dim, kernel_size=5, padding=2)
@@ -41,18 +42,38 @@ class InstructionGrounding(nn.Module):
         self.norm = nn.LayerNorm(dim)
         # The head reads the chosen query too: the sub-goal is where the named object is, shifted by
         # what the task does with it (a push ends beside the block, a lift above it).
-        self.subgoal_head = nn.Sequential(nn.Linear(2 * dim, dim), nn.SiLU(), nn.Linear(dim, 3))
+        self.subgoal_head = nn.Sequential(nn.Linear(2 * dim + tcp_dim, dim), nn.SiLU(), nn.Linear(dim, 3))
+        # With the tool-centre point's features (`tcp_dim` > 0, PolicyConfig.grounding_reads_tcp) the
+        # head can place the sub-goal from the wrist view, relative to the gripper: a block seen in the
+        # wrist view is an offset from the tcp, which a linear path adds (starting at zero).
+        self.tcp_skip = nn.Linear(tcp_dim, 3) if tcp_dim else None
+        if self.tcp_skip is not None:
+            nn.init.zeros_(self.tcp_skip.weight)
+            nn.init.zeros_(self.tcp_skip.bias)
         self.goal = nn.Sequential(nn.Linear(dim + 3, dim), nn.SiLU(), nn.Linear(dim, dim))
         # The goal starts at zero, so a System 1 given this module starts as the one without it.
         nn.init.zeros_(self.goal[2].weight)
         nn.init.zeros_(self.goal[2].bias)
 
     def forward(
-        self, instruction: torch.Tensor, instruction_mask: torch.Tensor, image_tokens: torch.Tensor
+        self,
+        instruction: torch.Tensor,
+        instruction_mask: torch.Tensor,
+        image_tokens: torch.Tensor,
+        tcp: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each instruction token's query attends over the image tokens; their read-outs and queries
-        are averaged with softmax weights of the tokens' scores (masked tokens get none). Returns the
-        goal (B, D) for the DiT and the predicted sub-goal (B, 3) in feature units."""
+        are averaged with softmax weights of the tokens' scores (masked tokens get none). `tcp`
+        (B, tcp_dim): the tool-centre point's features, required when built with tcp_dim > 0 and
+        refused otherwise. Returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in
+        feature units."""
+        batch = instruction.shape[0]
+        if self.tcp_skip is None and tcp is not None:
+            raise ValueError("tcp was given to an instruction grounding built without tcp_dim")
+        if self.tcp_skip is not None and (tcp is None or tuple(tcp.shape) != (batch, self.tcp_dim)):
+            got = None if tcp is None else tuple(tcp.shape)
+            raise ValueError(f"tcp must be ({batch}, {self.tcp_dim}), the tool-centre point's features "
+                             f"(policy.grounding_reads_tcp); got {got}")
         kept = instruction * instruction_mask.unsqueeze(-1).to(instruction.dtype)
         instruction = instruction + self.compose(kept.transpose(1, 2)).transpose(1, 2)
         queries = self.query(instruction)
@@ -60,7 +81,13 @@ class InstructionGrounding(nn.Module):
         scores = self.score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
         weights = torch.softmax(scores, dim=-1).nan_to_num(0.0).unsqueeze(-1)  # an all-masked row: zeros
         read = self.norm((weights * reads).sum(1))
-        subgoal = self.subgoal_head(torch.cat([read, (weights * queries).sum(1)], dim=-1))
+        head_input = [read, (weights * queries).sum(1)]
+        if self.tcp_skip is not None:
+            tcp = tcp.to(read.dtype)
+            head_input.append(tcp)
+        subgoal = self.subgoal_head(torch.cat(head_input, dim=-1))
+        if self.tcp_skip is not None:
+            subgoal = subgoal + self.tcp_skip(tcp)
         return self.goal(torch.cat([read, subgoal], dim=-1)), subgoal
 
 

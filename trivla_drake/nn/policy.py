@@ -111,7 +111,7 @@ class FlowMatchingPolicy(nn.Module):
             if not (self.uses_vl and vl_fixed_positions > 0):
                 raise ValueError("policy.instruction_grounding reads System 2's instruction and image tokens: "
                                  "it needs System 2")
-            self.grounding = InstructionGrounding(dim, config.num_heads)
+            self.grounding = self._new_grounding()
         self.subgoal_offset = None
         if config.subgoal_offset:
             if self.grounding is None:
@@ -156,26 +156,27 @@ class FlowMatchingPolicy(nn.Module):
         q_vl: torch.Tensor | None,
         q_vl_mask: torch.Tensor | None,
         q_p: torch.Tensor | None,
-        tcp_position: torch.Tensor | None = None,
+        tcp: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
-        configured (and, with `subgoal_offset`, the sub-goal seen from `tcp_position` (B, 3), the tcp
-        position in feature units); the cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and
-        their mask (B, M); the grounding's predicted sub-goal (B, 3) in tcp feature units, or None
-        without grounding."""
+        configured (and, with `subgoal_offset`, the sub-goal seen from the tcp position); the
+        cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M); the grounding's
+        predicted sub-goal (B, 3) in tcp feature units, or None without grounding. `tcp` (B, 9): the
+        tool-centre point's features (panda_tcp), needed with `subgoal_offset` or `grounding_reads_tcp`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
         if self.uses_vl:
             vl, vl_mask = self._vl_tokens(q_vl, q_vl_mask)
             if self.grounding is not None:
-                goal, subgoal = self._ground(vl, vl_mask)
+                if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_FEATURE_DIM)):
+                    got = None if tcp is None else tuple(tcp.shape)
+                    raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
+                                     f"(policy.subgoal_offset / policy.grounding_reads_tcp); got {got}")
+                goal, subgoal = self._ground(vl, vl_mask, tcp)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
-                    if tcp_position is None or tuple(tcp_position.shape) != (batch, 3):
-                        got = None if tcp_position is None else tuple(tcp_position.shape)
-                        raise ValueError(f"tcp_position must be ({batch}, 3) (policy.subgoal_offset); got {got}")
-                    q_s = q_s + self.subgoal_offset(subgoal, tcp_position).to(q_s.dtype)
+                    q_s = q_s + self.subgoal_offset(subgoal, tcp[:, :3]).to(q_s.dtype)
             parts.append(vl)
             masks.append(vl_mask)
         if self.uses_dynamics:
@@ -199,16 +200,26 @@ class FlowMatchingPolicy(nn.Module):
         mask = q_vl_mask if q_vl_mask is not None else torch.ones(q_vl.shape[:2], dtype=torch.bool, device=q_vl.device)
         return vl, mask
 
-    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    @property
+    def reads_tcp(self) -> bool:
+        """Whether conditions() needs the tcp features (`subgoal_offset` or `grounding_reads_tcp`)."""
+        return self.subgoal_offset is not None or self.config.grounding_reads_tcp
+
+    def _new_grounding(self) -> InstructionGrounding:
+        c = self.config
+        return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0)
+
+    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         fixed = self.vl_fixed_positions
-        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed])
+        tcp = tcp if self.config.grounding_reads_tcp else None
+        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], tcp)
 
     def reset_grounding(self) -> None:
         """A fresh instruction grounding in place of this one (drawn from torch's global generator)."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         old = next(self.grounding.parameters())
-        self.grounding = InstructionGrounding(self.config.hidden_size, self.config.num_heads).to(old.device, old.dtype)
+        self.grounding = self._new_grounding().to(old.device, old.dtype)
 
     def binding_parameters(self) -> dict[str, nn.Parameter]:
         """What binds the instruction's words to a place, by name: the instruction grounding but for its
@@ -223,11 +234,14 @@ class FlowMatchingPolicy(nn.Module):
                 if (name.startswith("grounding.") and not name.startswith("grounding.goal."))
                 or name.split(".")[0] in ("vl_norm", "vl_proj", "vl_position")}
 
-    def predict_subgoal(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None) -> torch.Tensor:
-        """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl alone."""
+    def predict_subgoal(
+        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl (and, with
+        `grounding_reads_tcp`, the tcp features (B, 9))."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
-        return self._ground(*self._vl_tokens(q_vl, q_vl_mask))[1]
+        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp)[1]
 
     # ------------------------------------------------------------------ flow matching
 

@@ -245,17 +245,22 @@ class TriVLA(nn.Module):
     def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):
         """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
         memory mask, predicted sub-goal or None. `state` (B, state_dim), unnormalised, is read only
-        with policy.subgoal_offset (the tcp position); ValueError when such a model gets none."""
+        with policy.subgoal_offset or policy.grounding_reads_tcp (the tcp features); ValueError when
+        such a model gets none."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
-        tcp_position = None
-        if self.policy.subgoal_offset is not None:
-            if state is None:
-                raise ValueError("state is required: this System 1 reads its sub-goal relative to the tool-centre "
-                                 "point (policy.subgoal_offset), which it computes from the robot state Q_s was "
-                                 "encoded from")
-            tcp_position = self.tcp_features(state)[:, :3].to(q_s.dtype)
         return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
-                                      tcp_position)
+                                      self._tcp_for_policy(state, q_s.dtype))
+
+    def _tcp_for_policy(self, state: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor | None:
+        """The tcp features (B, 9) of unnormalised states when System 1 reads them beyond Q_s
+        (policy.subgoal_offset / policy.grounding_reads_tcp), else None."""
+        if not self.policy.reads_tcp:
+            return None
+        if state is None:
+            raise ValueError("state is required: this System 1 reads the tool-centre point beside Q_s "
+                             "(policy.subgoal_offset / policy.grounding_reads_tcp), which it computes from the "
+                             "robot state Q_s was encoded from")
+        return self.tcp_features(state).to(dtype)
 
     def sample_actions_batch(
         self,
@@ -299,13 +304,26 @@ class TriVLA(nn.Module):
         return q_vl[0].float().cpu().numpy(), q_s
 
     @torch.inference_mode()
-    def predict_subgoal(self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str) -> np.ndarray:
+    def predict_subgoal(
+        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
+    ) -> np.ndarray:
         """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
-        tool-centre-point position [m] in the arm's base frame (ValueError without a grounding)."""
+        tool-centre-point position [m] in the arm's base frame (ValueError without a grounding).
+        `state` (state_dim,), the unnormalised robot state: required with policy.grounding_reads_tcp."""
         if self.policy.grounding is None:
             raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
-        q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, np.zeros(self.config.policy.state_dim))
-        subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None])
+        pol = self.config.policy
+        state = np.zeros(pol.state_dim) if state is None and not pol.grounding_reads_tcp else state
+        if state is None:
+            raise ValueError("state is required: this model's grounding reads the tool-centre point "
+                             "(policy.grounding_reads_tcp)")
+        state = check_state("state", state, pol.state_dim)
+        q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
+        tcp = None
+        if pol.grounding_reads_tcp:
+            tcp = self.tcp_features(torch.from_numpy(state)[None].to(self.device)).float()
+        subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
+                                              tcp=tcp)
         return denormalize_position(subgoal[0].double().cpu()).numpy()
 
     @torch.inference_mode()
@@ -523,7 +541,13 @@ class TriVLA(nn.Module):
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         with torch.no_grad():
             q_vl, q_vl_mask = self._batch_q_vl(batch)
-        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask))
+        tcp = None
+        if self.config.policy.grounding_reads_tcp:
+            if "state" not in batch:
+                raise ValueError("batch is missing 'state': this grounding reads the tool-centre point "
+                                 "(policy.grounding_reads_tcp)")
+            tcp = self.tcp_features(self._batch_tensor(batch, "state")).to(q_vl.dtype)
+        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask, tcp))
         return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
 
     def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:

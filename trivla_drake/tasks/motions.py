@@ -97,6 +97,31 @@ def retreat(scene: SceneState, gripper_closed: bool) -> list[Waypoint]:
     return plan
 
 
+# Detours (`detours`): the tcp's height above the top of the block it visits [m], its x-y jitter [m]
+# and the hand's yaw [rad].
+DETOUR_CLEARANCE = (0.03, 0.10)
+DETOUR_JITTER = 0.03
+DETOUR_YAW = (-0.8, 0.8)
+
+
+def detours(scene: SceneState, named: str | None, rng: np.random.Generator, count: int,
+            gripper: float = GRIPPER_OPEN) -> list[Waypoint]:
+    """`count` legs, each to just above a block other than `named` (any block when None), a few
+    centimetres off its centre, at a random yaw; the gripper stays at `gripper`. A demonstration that
+    visits them before its task shows the tcp near blocks the instruction does not name, so where the
+    hand is says nothing about where its next grasp will be (results/grounding_curriculum)."""
+    if count < 0:
+        raise ValueError(f"count must be >= 0, got {count}")
+    others = [c for c in scene.blocks if c != named] or list(scene.blocks)
+    plan: list[Waypoint] = []
+    for _ in range(count):
+        p = scene.block_position(others[int(rng.integers(len(others)))])
+        x, y = p[:2] + rng.uniform(-DETOUR_JITTER, DETOUR_JITTER, size=2)
+        z = p[2] + BLOCK_HALF + rng.uniform(*DETOUR_CLEARANCE)
+        plan.append(Waypoint(tcp_pose([x, y, z], float(rng.uniform(*DETOUR_YAW))), gripper, label="detour"))
+    return plan
+
+
 def grasp(scene: SceneState, color: str, lift_to: float, *, yaw: float | None = None) -> list[Waypoint]:
     """Open hand above the block, down around it, close, lift the tcp to `lift_to` [m]."""
     p = scene.block_position(color)

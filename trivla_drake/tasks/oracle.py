@@ -12,6 +12,7 @@ import numpy as np
 from trivla_drake.systems.action_executor import (
     ACTION_DIM,
     DEFAULT_ACTION_SPACE,
+    GRIPPER_CLOSE,
     GRIPPER_OPEN,
     ActionSpace,
     log_so3,
@@ -32,8 +33,14 @@ class OraclePolicy:
     uses_images = False
     privileged = True
 
-    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE):
+    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0):
+        """`detours`: before its task, the expert visits this many places just above blocks the
+        instruction does not name (motions.detours; drawn from the reset's seed). 0: none."""
+        if isinstance(detours, bool) or not isinstance(detours, (int, np.integer)) or detours < 0:
+            raise ValueError(f"detours must be an integer >= 0, got {detours!r}")
         self._space = action_space
+        self._detours = int(detours)
+        self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
         self._waited = 0
@@ -46,6 +53,7 @@ class OraclePolicy:
         self._index = 0
         self._waited = 0
         self._leg_steps = 0
+        self._rng = np.random.default_rng(seed)
 
     @property
     def plan(self) -> list[Waypoint] | None:
@@ -62,7 +70,8 @@ class OraclePolicy:
         if self._plan is None:
             closed = float(observation.get("gripper_command", GRIPPER_OPEN)) <= 0.0
             task = get_task(instance.task)
-            self._plan = motions.retreat(scene, closed) + task.plan(instance.params, scene)
+            self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance, closed) \
+                + task.plan(instance.params, scene)
         dt = self._space.dt
         while self._index < len(self._plan):
             wp = self._plan[self._index]
@@ -87,6 +96,13 @@ class OraclePolicy:
         hold = np.zeros(ACTION_DIM)
         hold[6] = self._gripper
         return hold
+
+    def _detour_plan(self, scene, instance, closed: bool) -> list[Waypoint]:
+        if not self._detours:
+            return []
+        named = instance.params[0] if instance.params and instance.params[0] in scene.blocks else None
+        gripper = GRIPPER_CLOSE if closed and scene.held_block() is not None else GRIPPER_OPEN
+        return motions.detours(scene, named, self._rng, self._detours, gripper)
 
     def _toward(self, X_cmd: np.ndarray, wp: Waypoint) -> tuple[np.ndarray, bool]:
         """A step of at most the waypoint's speeds towards its pose; and whether X_cmd is there."""

@@ -67,6 +67,8 @@ def config_from_args(args: argparse.Namespace):
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
         subgoal_offset=args.subgoal_offset,
+        keep_grounding=args.keep_grounding,
+        grounding_reads_tcp=args.grounding_reads_tcp,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -171,6 +173,13 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "together; bind trains only the grounding and the Q_vl projection, on the sub-goal "
                              "loss over the approach frames; follow keeps those as --init has them and trains the "
                              "rest of System 1. The two-step recipe is bind, then follow from its checkpoint")
+    parser.add_argument("--keep-grounding", action="store_true",
+                        help="policy, --grounding-phase bind with --init: go on binding the --init checkpoint's "
+                             "grounding instead of a fresh one (bind on few scenes first, then on more)")
+    parser.add_argument("--grounding-reads-tcp", action="store_true",
+                        help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
+                             "point's features, to place its sub-goal from the wrist view (added when --init's "
+                             "grounding reads none)")
     parser.add_argument("--subgoal-offset", action="store_true",
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "

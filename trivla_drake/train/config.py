@@ -148,6 +148,13 @@ class TrainConfig:
     # Inside a joint run the binding did not form; bind then follow is the two-step recipe
     # (results/instruction_grounding).
     grounding_phase: str = "joint"
+    # policy stage, grounding_phase "bind" with --init: continue the --init checkpoint's grounding instead
+    # of binding a fresh one, a curriculum (bind on few scenes, where the binding forms, then on more).
+    keep_grounding: bool = False
+    # policy stage, with a grounding: the grounding also reads the tool-centre point's features
+    # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
+    # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
+    grounding_reads_tcp: bool = False
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
@@ -226,6 +233,13 @@ class TrainConfig:
         if self.grounding_phase != "joint" and not self.grounding_weight > 0:
             raise ValueError(f"grounding_phase (--grounding-phase) {self.grounding_phase} trains with System 1's "
                              "instruction grounding: it needs grounding_weight (--grounding-weight) > 0")
+        if self.keep_grounding and not (self.grounding_phase == "bind" and self.init):
+            raise ValueError("keep_grounding (--keep-grounding) continues the grounding of a --init checkpoint in a "
+                             "bind run: it needs --grounding-phase bind and --init")
+        if self.grounding_reads_tcp and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
+            raise ValueError("grounding_reads_tcp (--grounding-reads-tcp) gives System 1's instruction grounding the "
+                             "tcp features: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
+                             "the tcp features (drop --no-tcp-features)")
         if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
             raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
                              "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "

@@ -58,14 +58,16 @@ def apply_ablations(
     dense_classes: int = 0,
     instruction_grounding: bool = False,
     subgoal_offset: bool = False,
+    grounding_reads_tcp: bool = False,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
     it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
     where it has none, with `dense_classes` > 0, a fresh block head on System 2's image tokens
     where it has none, with `instruction_grounding`, a fresh instruction grounding in System 1
-    where it has none and, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
-    where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
+    where it has none, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
+    where it has none and, with `grounding_reads_tcp`, a grounding that reads the tcp features
+    (its sub-goal head's first layer and tcp path fresh) where it reads none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -80,15 +82,17 @@ def apply_ablations(
     classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
     grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
     offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
+    reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
-            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset):
+            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
-                                   instruction_grounding=grounding, subgoal_offset=offset),
+                                   instruction_grounding=grounding, subgoal_offset=offset,
+                                   grounding_reads_tcp=reads_tcp),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
     )
     tokenizers = {}
@@ -140,7 +144,8 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
         cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
                                         vl_position_embedding=config.vl_position_embedding and config.use_system2,
                                         instruction_grounding=config.grounding_weight > 0,
-                                        subgoal_offset=config.subgoal_offset),
+                                        subgoal_offset=config.subgoal_offset,
+                                        grounding_reads_tcp=config.grounding_reads_tcp),
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
             dense_classes=_dense_classes(config) if config.use_system2 else 0,
@@ -160,10 +165,18 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow" and model.policy.grounding is None:
             raise ValueError(f"grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              f"{where}, which has none: train one with --grounding-phase bind first")
+        if (config.grounding_phase == "follow" and config.grounding_reads_tcp
+                and not model.config.policy.grounding_reads_tcp):
+            raise ValueError(f"grounding_reads_tcp (--grounding-reads-tcp) changes the instruction grounding, which a "
+                             f"follow run keeps as its {where} has it (reading no tcp): bind one with "
+                             f"--grounding-reads-tcp first")
+        if config.keep_grounding and model.policy.grounding is None:
+            raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
+                             f"which has none: bind one without --keep-grounding first")
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
-                                config.grounding_weight > 0, config.subgoal_offset)
-        if config.grounding_phase == "bind":
+                                config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp)
+        if config.grounding_phase == "bind" and not config.keep_grounding:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
             # (results/instruction_grounding).
