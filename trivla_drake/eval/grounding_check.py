@@ -48,6 +48,20 @@ class GroundingCheck:
         return asdict(self)
 
 
+def ask_every_colour(model, observation: dict, instruction: str, named: str,
+                     blocks: dict[str, np.ndarray]) -> list[tuple[str, float, bool]]:
+    """The grounding asked once per block colour (`named` in `instruction` replaced by it), on one
+    observation (its images and state): per colour, (colour, x-y error of the sub-goal to that
+    colour's block in `blocks` [m], whether that block is the sub-goal's nearest)."""
+    answers = []
+    for colour in BLOCK_COLORS:
+        subgoal = model.predict_subgoal(observation["static_rgb"], observation["wrist_rgb"],
+                                        instruction.replace(named, colour), observation["state"])
+        distance = {c: float(np.linalg.norm((subgoal - p)[:2])) for c, p in blocks.items()}
+        answers.append((colour, distance[colour], min(distance, key=distance.get) == colour))
+    return answers
+
+
 class _ApproachProbe:
     """A harness policy: the oracle drives, and until its gripper first closes the grounding is asked
     for every block colour every `every` steps. Records (tcp distance to the block approached [m],
@@ -76,13 +90,9 @@ class _ApproachProbe:
                 named, scene = observation["privileged"]["task"].params[0], observation["privileged"]["scene"]
                 blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
                 reach = float(np.linalg.norm(np.asarray(observation["tcp_pose"])[:3, 3] - blocks[named]))
-                for colour in BLOCK_COLORS:
-                    subgoal = self._model.predict_subgoal(
-                        observation["static_rgb"], observation["wrist_rgb"],
-                        observation["instruction"].replace(named, colour), observation["state"])
-                    distance = {c: float(np.linalg.norm((subgoal - p)[:2])) for c, p in blocks.items()}
-                    self.records.append((reach, colour == named, distance[colour],
-                                         min(distance, key=distance.get) == colour))
+                for colour, error, hit in ask_every_colour(self._model, observation, observation["instruction"],
+                                                           named, blocks):
+                    self.records.append((reach, colour == named, error, hit))
             except Exception as error:  # noqa: BLE001 - raised by approach_errors after the episode
                 self.error = error
         self._closed = self._closed or float(action[6]) <= 0.0
@@ -125,13 +135,10 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
         named = instance.params[0]
         observation = env.reset(spec)
         scene = env.scene()
-        for colour in BLOCK_COLORS:
-            instruction = instance.instruction.replace(named, colour)
-            subgoal = model.predict_subgoal(observation["static_rgb"], observation["wrist_rgb"], instruction,
-                                            observation["state"])
-            distance = {c: float(np.linalg.norm((subgoal - scene.block_position(c))[:2])) for c in BLOCK_COLORS}
-            hits += min(distance, key=distance.get) == colour
-            errors.append(distance[colour])
+        blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
+        for _, error, hit in ask_every_colour(model, observation, instance.instruction, named, blocks):
+            hits += hit
+            errors.append(error)
     check = GroundingCheck(scenes=scenes, queries=len(errors), hits=hits,
                            median_error_m=float(np.median(errors)), chance=1.0 / len(BLOCK_COLORS))
     if approach:

@@ -313,15 +313,12 @@ class TriVLA(nn.Module):
         if self.policy.grounding is None:
             raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
         pol = self.config.policy
-        state = np.zeros(pol.state_dim) if state is None and not pol.grounding_reads_tcp else state
-        if state is None:
+        if state is None and pol.grounding_reads_tcp:
             raise ValueError("state is required: this model's grounding reads the tool-centre point "
                              "(policy.grounding_reads_tcp)")
-        state = check_state("state", state, pol.state_dim)
+        state = check_state("state", np.zeros(pol.state_dim) if state is None else state, pol.state_dim)
         q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
-        tcp = None
-        if pol.grounding_reads_tcp:
-            tcp = self.tcp_features(torch.from_numpy(state)[None].to(self.device)).float()
+        tcp = self.tcp_features(torch.from_numpy(state)[None].to(self.device)).float() if pol.grounding_reads_tcp else None
         subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
                                               tcp=tcp)
         return denormalize_position(subgoal[0].double().cpu()).numpy()

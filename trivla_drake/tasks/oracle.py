@@ -70,7 +70,7 @@ class OraclePolicy:
         if self._plan is None:
             closed = float(observation.get("gripper_command", GRIPPER_OPEN)) <= 0.0
             task = get_task(instance.task)
-            self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance, closed) \
+            self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance) \
                 + task.plan(instance.params, scene)
         dt = self._space.dt
         while self._index < len(self._plan):
@@ -97,11 +97,12 @@ class OraclePolicy:
         hold[6] = self._gripper
         return hold
 
-    def _detour_plan(self, scene, instance, closed: bool) -> list[Waypoint]:
+    def _detour_plan(self, scene, instance) -> list[Waypoint]:
         if not self._detours:
             return []
         named = instance.params[0] if instance.params and instance.params[0] in scene.blocks else None
-        gripper = GRIPPER_CLOSE if closed and scene.held_block() is not None else GRIPPER_OPEN
+        # After `retreat` the hand is open unless it carries a block.
+        gripper = GRIPPER_CLOSE if scene.held_block() is not None else GRIPPER_OPEN
         return motions.detours(scene, named, self._rng, self._detours, gripper)
 
     def _toward(self, X_cmd: np.ndarray, wp: Waypoint) -> tuple[np.ndarray, bool]:
