@@ -216,3 +216,26 @@ if [[ "${DETOURS:-0}" == 1 ]]; then
   trivla-drake probe --checkpoint "$RUNS/bind_tcp_no_detours/final" --grounding-scenes 20 --threads 2 \
       > results/grounding_curriculum/grounding_check_bind_tcp_no_detours.md
 fi
+# 17. results/grasp_yaw/: the grounding also predicts the hand's yaw at its sub-goal, modulo a quarter
+#     turn (--subgoal-yaw: a linear read-out of System 2's image tokens in place, bound on the DART
+#     demonstrations going on from step 15's grounding), and System 1 reads it as a turn from the
+#     hand's yaw; step 15's follow run again from that bind run. Grounding check, export, evaluation
+#     seeds 1000-1005, and the grasps of both.
+mkdir -p results/grasp_yaw
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_bind_yaw" \
+    --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase bind --keep-grounding --subgoal-yaw --lr 1e-3 \
+    --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --threads 2 \
+    > results/grasp_yaw/grounding_check_bind_yaw.md
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_yaw" \
+    --init "$RUNS/grounded_bind_yaw/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
+    --subgoal-offset --subgoal-yaw
+trivla-drake export "$RUNS/grounded_follow_yaw/final" --out "$RUNS/yaw_export" --drop-unused-llm-layers
+for model in "$RUNS/yaw_export" models/trivla_cpu; do
+  name=$(basename "$model")
+  trivla-drake probe --checkpoint "$model" --grasp-episodes 6 > "results/grasp_yaw/grasps_$name.md"
+done
+for seed in 1000 1001 1002 1003 1004 1005; do
+  trivla-drake evaluate --policy "$RUNS/yaw_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/grasp_yaw/yaw_seed$seed.json"
+done

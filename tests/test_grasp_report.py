@@ -26,11 +26,14 @@ def test_the_oracle_closes_on_the_named_block_and_lifts_it():
     assert row.success and row.close_step is not None and row.close_step > 0
     assert row.nearest_block_named and row.close_to_block_m < 0.015
     assert 0.01 < row.close_height_m < 0.05
+    assert abs(row.close_yaw_error_deg) < 5.0  # the expert turns the hand to the block's faces
     assert row.first_subgoal_to_block_m is None and row.close_to_subgoal_m is None  # no grounding
     summary = grasp_summary(rows)
     assert (summary["episodes"], summary["successes"], summary["closed_within_1_5_cm"]) == (1, 1, 1)
+    assert summary["closed_within_15_deg"] == 1 and summary["median_abs_close_yaw_error_deg"] < 5.0
     text = format_grasp_report(rows)
     assert "| lift_block | 1000 | yes |" in text and "1/1 succeed" in text
+    assert "the hand's yaw within 15 degrees of the block's faces in 1" in text
 
 
 def test_a_grounded_model_gets_its_subgoal_recorded_per_chunk(tmp_path, capsys):

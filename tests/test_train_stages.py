@@ -365,6 +365,23 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
     assert offset_model.config.policy.subgoal_offset and not after.config.policy.subgoal_offset
     assert offset_model.policy.subgoal_offset.mlp[2].weight.abs().sum() > 0
     assert torch.equal(offset_model.policy.grounding.compose.weight, after.policy.grounding.compose.weight)
+    # --subgoal-yaw: a bind run adds a yaw head to the grounding it keeps and trains it on the dataset's yaw
+    # labels; a follow run from it trains System 1's yaw encoder; a follow run cannot add the head
+    yaw_bind = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "yaw_bind"), init=bound["final_checkpoint"],
+                                 steps=2, grounding_weight=1.0, grounding_phase="bind", keep_grounding=True,
+                                 subgoal_yaw=True, **runs["common"]))
+    yaw_bound = load_checkpoint(yaw_bind["final_checkpoint"])
+    assert yaw_bound.config.policy.subgoal_yaw and yaw_bound.policy.grounding.yaw_head is not None
+    assert torch.equal(yaw_bound.policy.grounding.goal[0].weight, after.policy.grounding.goal[0].weight)
+    assert torch.equal(yaw_bound.policy.subgoal_yaw.mlp[2].weight, torch.zeros_like(yaw_bound.policy.subgoal_yaw.mlp[2].weight))
+    with pytest.raises(ValueError, match=r"subgoal_yaw \(--subgoal-yaw\).*follow run keeps.*bind one with --subgoal-yaw"):
+        build_model(dataclasses.replace(again, grounding_phase="follow", subgoal_yaw=True), None)
+    yaw_follow = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "yaw_follow"),
+                                   init=yaw_bind["final_checkpoint"], steps=2, grounding_weight=1.0,
+                                   grounding_phase="follow", subgoal_yaw=True, **runs["common"]))
+    yaw_followed = load_checkpoint(yaw_follow["final_checkpoint"])
+    assert yaw_followed.policy.subgoal_yaw.mlp[2].weight.abs().sum() > 0
+    assert torch.equal(yaw_followed.policy.grounding.yaw_head.weight, yaw_bound.policy.grounding.yaw_head.weight)
 
     with pytest.raises(ValueError, match="follow keeps the instruction grounding.*bind first"):
         train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,

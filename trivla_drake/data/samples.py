@@ -17,6 +17,8 @@ Sample for frame t of an episode with T frames (keys; shapes with the defaults):
                             that action: it answers a state frame t does not show, so it is no label
     subgoal_position        (3,) float32 [m], where the tool-centre point is when the gripper next
                             changes (data/subgoals.py); only when the dataset has observation.tcp_pose
+    subgoal_yaw             (2,) float32, (cos 4 psi, sin 4 psi) of the tcp's yaw psi at that gripper change
+                            (data/subgoals.py: the yaw modulo a quarter turn); with subgoal_position
     subgoal_is_approach     bool, frame t lies before the episode's first gripper change (with it)
     episode_index, frame_index
 
@@ -30,7 +32,7 @@ from collections import OrderedDict
 import numpy as np
 
 from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader
-from trivla_drake.data.subgoals import approach_frames, next_gripper_event_positions
+from trivla_drake.data.subgoals import approach_frames, next_gripper_event_positions, next_gripper_event_yaws
 
 GRIPPER_INDEX = 6
 TCP_POSE_KEY = "observation.tcp_pose"  # (7,): x, y, z [m] in the world, then a quaternion
@@ -102,7 +104,9 @@ class TrainingSamples:
         )
         if TCP_POSE_KEY in data:
             gripper = np.asarray(data[self.action_key])[:, GRIPPER_INDEX]
-            data["subgoal_position"] = next_gripper_event_positions(gripper, np.asarray(data[TCP_POSE_KEY])[:, :3])
+            tcp_pose = np.asarray(data[TCP_POSE_KEY])
+            data["subgoal_position"] = next_gripper_event_positions(gripper, tcp_pose[:, :3])
+            data["subgoal_yaw"] = next_gripper_event_yaws(gripper, tcp_pose[:, 3:7])
             data["subgoal_is_approach"] = approach_frames(gripper)
         self._cache[episode] = data
         if len(self._cache) > self._cache_size:
@@ -138,6 +142,7 @@ class TrainingSamples:
         }
         if "subgoal_position" in data:
             sample["subgoal_position"] = data["subgoal_position"][t]
+            sample["subgoal_yaw"] = data["subgoal_yaw"][t]
             sample["subgoal_is_approach"] = bool(data["subgoal_is_approach"][t])
         for key in self.cameras:
             frames = data["videos"][key]

@@ -34,23 +34,53 @@ def approach_frames(gripper: np.ndarray) -> np.ndarray:
     return np.arange(len(gripper)) < first
 
 
+def next_gripper_event_frames(gripper: np.ndarray) -> np.ndarray:
+    """Per frame t of an episode, the first frame k > t whose gripper command (T,) has another sign
+    than frame k-1's, else the last frame. Returns int64 (T,)."""
+    gripper = np.asarray(gripper, dtype=np.float64)
+    length = len(gripper)
+    events = np.append(gripper_changes(gripper), length - 1)
+    # For frame t: the first event index strictly after t (the last frame when none is left).
+    which = np.searchsorted(events, np.arange(length), side="right")
+    return events[np.minimum(which, len(events) - 1)].astype(np.int64)
+
+
+def _checked(gripper, values, name: str, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """gripper (T,) and per-frame `values` (T, width) as float64, after checking shapes and finiteness."""
+    gripper = np.asarray(gripper, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if gripper.ndim != 1 or values.shape != (len(gripper), width):
+        raise ValueError(f"gripper must be (T,) and {name} (T, {width}); got {gripper.shape} and {values.shape}")
+    if not (np.isfinite(gripper).all() and np.isfinite(values).all()):
+        raise ValueError(f"gripper and {name} must be finite")
+    return gripper, values
+
+
 def next_gripper_event_positions(gripper: np.ndarray, tcp_position: np.ndarray) -> np.ndarray:
     """Per frame t of an episode, the tool-centre-point position at the first frame k > t whose
     gripper command has another sign than frame k-1's, else at the last frame.
 
     gripper (T,) commands (sign: open / closed); tcp_position (T, 3) [m]. Returns float32 (T, 3)."""
-    gripper = np.asarray(gripper, dtype=np.float64)
-    tcp_position = np.asarray(tcp_position, dtype=np.float64)
-    if gripper.ndim != 1 or tcp_position.shape != (len(gripper), 3):
-        raise ValueError(
-            f"gripper must be (T,) and tcp_position (T, 3); got {gripper.shape} and {tcp_position.shape}"
-        )
-    length = len(gripper)
-    if length == 0:
-        return np.zeros((0, 3), dtype=np.float32)
-    if not (np.isfinite(gripper).all() and np.isfinite(tcp_position).all()):
-        raise ValueError("gripper and tcp_position must be finite")
-    events = np.append(gripper_changes(gripper), length - 1)
-    # For frame t: the first event index strictly after t (the last frame when none is left).
-    which = np.searchsorted(events, np.arange(length), side="right")
-    return tcp_position[events[np.minimum(which, len(events) - 1)]].astype(np.float32)
+    gripper, tcp_position = _checked(gripper, tcp_position, "tcp_position", 3)
+    return tcp_position[next_gripper_event_frames(gripper)].astype(np.float32)
+
+
+def quarter_turn_yaw_features(tcp_quaternion: np.ndarray) -> np.ndarray:
+    """The hand's yaw psi about world z of tcp orientations (..., 4) as quaternions (w, x, y, z), as
+    (cos 4 psi, sin 4 psi) (..., 2): the yaw modulo a quarter turn, continuous across it. A cube's faces
+    repeat every quarter turn, so a grasp at psi and at psi + 90 degrees closes on the same faces;
+    the features tell the faces apart from the 45-degree turn between them, where a grasp fails."""
+    q = np.asarray(tcp_quaternion, dtype=np.float64)
+    if q.shape[-1] != 4:
+        raise ValueError(f"tcp_quaternion must be (..., 4) as (w, x, y, z); got {q.shape}")
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    # The tcp's x axis in the world (the rotation matrix's first column), as scene.hand_yaw reads it.
+    psi = np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+    return np.stack([np.cos(4.0 * psi), np.sin(4.0 * psi)], axis=-1).astype(np.float32)
+
+
+def next_gripper_event_yaws(gripper: np.ndarray, tcp_quaternion: np.ndarray) -> np.ndarray:
+    """Per frame t, `quarter_turn_yaw_features` of the tcp orientation at the next gripper event (as
+    `next_gripper_event_positions`). gripper (T,); tcp_quaternion (T, 4) (w, x, y, z). float32 (T, 2)."""
+    gripper, tcp_quaternion = _checked(gripper, tcp_quaternion, "tcp_quaternion", 4)
+    return quarter_turn_yaw_features(tcp_quaternion[next_gripper_event_frames(gripper)])

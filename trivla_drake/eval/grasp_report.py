@@ -34,6 +34,9 @@ class GraspRow:
     first_subgoal_to_block_m: float | None = None  # the grounding's sub-goal on the first observation
     close_subgoal_to_block_m: float | None = None  # ... on the observation the closing chunk was planned from
     close_to_subgoal_m: float | None = None  # tool-centre point to that sub-goal when it closes
+    # The hand's yaw when it closes against the named block's faces (as the scene starts), in degrees
+    # modulo a quarter turn: in [-45, 45); near +-45 the fingers come down on the block's corners.
+    close_yaw_error_deg: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -69,6 +72,16 @@ class _SubgoalRecorder:
         """The sub-goal of the chunk that step `step` was executed from."""
         starts = [start for start, _ in self.chunks]
         return self.chunks[int(np.searchsorted(starts, step, side="right")) - 1][1] if self.chunks else None
+
+
+def _yaw_error_deg(pose7: np.ndarray, block_yaw: float) -> float:
+    """The yaw of a downward tcp pose (x, y, z, qw, qx, qy, qz) against a block's faces [deg], folded
+    into [-45, 45)."""
+    from trivla_drake.tasks.scene import fold_quarter_turn
+
+    w, x, y, z = (float(v) for v in pose7[3:7])
+    yaw = np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))  # as scene.hand_yaw reads it
+    return float(np.degrees(fold_quarter_turn(yaw - block_yaw)))
 
 
 def _xy(a: np.ndarray, b: np.ndarray) -> float:
@@ -113,12 +126,14 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
                 row.first_subgoal_to_block_m = _xy(first_subgoal, named)
             if closed.size:
                 step = int(closed[0])
-                tcp = np.asarray(result.trajectory.tcp_poses[step])[:3]
+                pose = np.asarray(result.trajectory.tcp_poses[step])
+                tcp = pose[:3]
                 distances = {colour: _xy(tcp, position) for colour, position in blocks.items()}
                 row.close_step = step
                 row.close_to_block_m = distances[named_colour]
                 row.nearest_block_named = min(distances, key=distances.get) == named_colour
                 row.close_height_m = float(tcp[2])
+                row.close_yaw_error_deg = _yaw_error_deg(pose, spec.blocks[named_colour].yaw)
                 subgoal = recorder.subgoal_at(step)
                 if subgoal is not None:
                     row.close_subgoal_to_block_m = _xy(subgoal, named)
@@ -147,6 +162,9 @@ def grasp_summary(rows: list[GraspRow]) -> dict:
         "median_first_subgoal_to_block_cm": median("first_subgoal_to_block_m"),
         "median_close_subgoal_to_block_cm": median("close_subgoal_to_block_m"),
         "median_close_to_subgoal_cm": median("close_to_subgoal_m"),
+        "median_abs_close_yaw_error_deg": (round(float(np.median([abs(r.close_yaw_error_deg) for r in closed])), 1)
+                                           if closed else None),
+        "closed_within_15_deg": sum(abs(r.close_yaw_error_deg) <= 15.0 for r in closed),
     }
 
 
@@ -154,8 +172,8 @@ def format_grasp_report(rows: list[GraspRow]) -> str:
     """A Markdown table of the episodes and a summary line."""
     lines = [
         "| task | seed | success | closes at step | to named block [cm] | named block nearest | height [cm] "
-        "| sub-goal to block, first / at close [cm] | to sub-goal [cm] |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| yaw to the block's faces [deg] | sub-goal to block, first / at close [cm] | to sub-goal [cm] |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         def cm(value):
@@ -163,7 +181,8 @@ def format_grasp_report(rows: list[GraspRow]) -> str:
         nearest = "-" if r.nearest_block_named is None else ("yes" if r.nearest_block_named else "no")
         lines.append(f"| {r.task} | {r.seed} | {'yes' if r.success else 'no'} | "
                      f"{'never' if r.close_step is None else r.close_step} | {cm(r.close_to_block_m)} | {nearest} | "
-                     f"{cm(r.close_height_m)} | {cm(r.first_subgoal_to_block_m)} / {cm(r.close_subgoal_to_block_m)} | "
+                     f"{cm(r.close_height_m)} | {'-' if r.close_yaw_error_deg is None else f'{r.close_yaw_error_deg:+.0f}'} | "
+                     f"{cm(r.first_subgoal_to_block_m)} / {cm(r.close_subgoal_to_block_m)} | "
                      f"{cm(r.close_to_subgoal_m)} |")
     s = grasp_summary(rows)
 
@@ -175,7 +194,8 @@ def format_grasp_report(rows: list[GraspRow]) -> str:
         f"{s['successes']}/{s['episodes']} succeed; the gripper closes in {s['closed']}, nearest the named block in "
         f"{s['nearest_block_named']}, within 1.5 cm of it in {s['closed_within_1_5_cm']} and within 3 cm in "
         f"{s['closed_within_3_cm']}; medians: {median('median_close_to_block_cm')} cm from the block "
-        f"at {median('median_close_height_cm')} cm height; the grounding's sub-goal "
+        f"at {median('median_close_height_cm')} cm height, the hand's yaw within 15 degrees of the block's faces in "
+        f"{s['closed_within_15_deg']} (median {median('median_abs_close_yaw_error_deg')} degrees off); the grounding's sub-goal "
         f"{median('median_first_subgoal_to_block_cm')} cm from the block first, "
         f"{median('median_close_subgoal_to_block_cm')} cm when the closing chunk was planned, "
         f"the gripper {median('median_close_to_subgoal_cm')} cm from that sub-goal")

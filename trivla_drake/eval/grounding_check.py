@@ -27,6 +27,7 @@ CHECK_TASK = "lift_block"  # its first gripper event is the grasp of the block t
 # Bands of the tcp's 3-D distance to the named block [m] along the approach: (name, lower, upper).
 APPROACH_BANDS = (("far", 0.15, float("inf")), ("mid", 0.05, 0.15), ("near", 0.0, 0.05))
 APPROACH_EVERY = 4  # control steps between two queries along the approach
+YAW_TOLERANCE_DEG = 15.0  # a yaw error a grasp of a 4.5 cm block in the 8 cm open gripper still takes
 
 
 @dataclass
@@ -43,6 +44,11 @@ class GroundingCheck:
     # approached (APPROACH_BANDS): queries, hits and median x-y error [m] (None: no query) when asking
     # for the block approached ("approached") and for the other blocks ("other").
     approach: dict[str, dict[str, dict]] | None = None
+    # For a grounding that predicts the grasp's yaw (policy.subgoal_yaw), along the approach, per band:
+    # queries, how many are within YAW_TOLERANCE_DEG of the approached block's faces (a guess: a third)
+    # and the median |error| [deg] (modulo a quarter turn, so at most 45). None without it. Its read-out
+    # does not read the instruction: the wrist view near the block shows which one.
+    approach_yaw: dict[str, dict] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -62,6 +68,16 @@ def ask_every_colour(model, observation: dict, instruction: str, named: str,
     return answers
 
 
+def yaw_error_deg(model, observation: dict, instruction: str, block_yaw: float) -> float:
+    """The grounding's yaw (policy.subgoal_yaw) for `instruction` on one observation, against the
+    block's faces at `block_yaw` [rad]: the error in degrees, modulo a quarter turn, in [-45, 45)."""
+    from trivla_drake.tasks.scene import fold_quarter_turn
+
+    yaw = model.predict_subgoal_yaw(observation["static_rgb"], observation["wrist_rgb"], instruction,
+                                    observation["state"])
+    return float(np.degrees(fold_quarter_turn(yaw - block_yaw)))
+
+
 class _ApproachProbe:
     """A harness policy: the oracle drives, and until its gripper first closes the grounding is asked
     for every block colour every `every` steps. Records (tcp distance to the block approached [m],
@@ -76,6 +92,7 @@ class _ApproachProbe:
 
         self._model, self._every, self._oracle = model, every, OraclePolicy()
         self.records: list[tuple[float, bool, float, bool]] = []
+        self.yaw_records: list[tuple[float, float]] = []  # (tcp distance [m], yaw error [deg]), with a yaw
         self.error: Exception | None = None
         self._steps, self._closed = 0, False
 
@@ -93,6 +110,9 @@ class _ApproachProbe:
                 for colour, error, hit in ask_every_colour(self._model, observation, observation["instruction"],
                                                            named, blocks):
                     self.records.append((reach, colour == named, error, hit))
+                if self._model.config.policy.subgoal_yaw:
+                    self.yaw_records.append((reach, yaw_error_deg(self._model, observation, observation["instruction"],
+                                                                  scene.block_yaw(named))))
             except Exception as error:  # noqa: BLE001 - raised by approach_errors after the episode
                 self.error = error
         self._closed = self._closed or float(action[6]) <= 0.0
@@ -100,11 +120,13 @@ class _ApproachProbe:
         return action
 
 
-def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY) -> list[tuple[float, bool, float, bool]]:
+def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY
+                    ) -> tuple[list[tuple[float, bool, float, bool]], list[tuple[float, float]]]:
     """Every `every` steps of the oracle's approach, until it first closes the gripper, in `scenes`
     lift_block scenes from `seed` on, one record per block colour asked: (tcp distance to the block
     approached [m], asked for that block, x-y error of the sub-goal to the block asked [m], the
-    sub-goal nearest the block asked)."""
+    sub-goal nearest the block asked); and, for a grounding with a yaw (policy.subgoal_yaw), one per
+    query of the block approached: (tcp distance [m], yaw error to its faces [deg]); else none."""
     from trivla_drake.eval.episode import run_episode
 
     probe = _ApproachProbe(model, every)
@@ -112,7 +134,7 @@ def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY) 
         run_episode(CHECK_TASK, seed + k, probe)
         if probe.error is not None:
             raise probe.error
-    return probe.records
+    return probe.records, probe.yaw_records
 
 
 def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = True) -> GroundingCheck:
@@ -141,8 +163,10 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
             errors.append(error)
     check = GroundingCheck(scenes=scenes, queries=len(errors), hits=hits,
                            median_error_m=float(np.median(errors)), chance=1.0 / len(BLOCK_COLORS))
+
     if approach:
-        records = np.asarray(approach_errors(model, scenes, seed), dtype=float).reshape(-1, 4)
+        records, yaw_records = approach_errors(model, scenes, seed)
+        records = np.asarray(records, dtype=float).reshape(-1, 4)
         check.approach = {}
         for band, low, high in APPROACH_BANDS:
             inside = records[(records[:, 0] >= low) & (records[:, 0] < high)]
@@ -151,7 +175,18 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
                 check.approach[band][which] = {
                     "queries": int(len(rows)), "hits": int(rows[:, 3].sum()),
                     "median_error_m": float(np.median(rows[:, 2])) if len(rows) else None}
+        if yaw_records:
+            check.approach_yaw = _yaw_bands(np.asarray(yaw_records, dtype=float))
     return check
+
+
+def _yaw_bands(records: np.ndarray) -> dict[str, dict]:
+    bands = {}
+    for band, low, high in APPROACH_BANDS:
+        errors = np.abs(records[(records[:, 0] >= low) & (records[:, 0] < high), 1])
+        bands[band] = {"queries": int(len(errors)), "within_tolerance": int(np.sum(errors <= YAW_TOLERANCE_DEG)),
+                       "median_error_deg": float(np.median(errors)) if len(errors) else None}
+    return bands
 
 
 def format_grounding_check(check: GroundingCheck) -> str:
@@ -159,7 +194,18 @@ def format_grounding_check(check: GroundingCheck) -> str:
     return (f"instruction grounding on {check.scenes} unseen lift_block scenes: the sub-goal is nearest the "
             f"named block in {check.hits}/{check.queries} queries ({check.hits / check.queries:.2f}; a colour-blind "
             f"guess {check.chance:.2f}), median {100 * check.median_error_m:.1f} cm from it"
-            + _format_approach(check))
+            + _format_approach(check) + _format_yaw(check))
+
+
+def _format_yaw(check: GroundingCheck) -> str:
+    if check.approach_yaw is None:
+        return ""
+    lines = ["", f"its yaw along the approach, against the approached block's faces (within {YAW_TOLERANCE_DEG:.0f} "
+                 "degrees; a guess: a third; median error):"]
+    for band, row in check.approach_yaw.items():
+        error = "-" if row["median_error_deg"] is None else f"{row['median_error_deg']:.0f} degrees"
+        lines.append(f"  {band}: {row['within_tolerance']}/{row['queries']}, {error}")
+    return "\n".join(lines)
 
 
 def _format_approach(check: GroundingCheck) -> str:

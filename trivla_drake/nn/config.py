@@ -218,6 +218,12 @@ class PolicyConfig:
     # needs the robot state (`TriVLA.predict_subgoal(..., state=)`). Off in checkpoints saved before it
     # existed; `train --stage policy --grounding-phase bind --grounding-reads-tcp` turns it on.
     grounding_reads_tcp: bool = False
+    # The instruction grounding also predicts the hand's yaw at the next gripper event, modulo a quarter
+    # turn (cos 4 psi, sin 4 psi), and an MLP of it and of the turn from the hand's yaw to it is added
+    # to Q_s. In the shipped model before it, most failed grasps came down 40-45 degrees off the block's
+    # faces (results/grasp_yaw). Needs instruction_grounding and tcp_features; System 1 then needs the
+    # robot state. Off in checkpoints saved before it existed; `train --subgoal-yaw` turns it on.
+    subgoal_yaw: bool = False
 
 
 @dataclass
@@ -301,6 +307,9 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
     if pol.grounding_reads_tcp and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.grounding_reads_tcp gives the instruction grounding the tcp features: it needs "
+                         "policy.instruction_grounding and policy.tcp_features")
+    if pol.subgoal_yaw and not (pol.instruction_grounding and pol.tcp_features):
+        raise ValueError("policy.subgoal_yaw turns the grounding's yaw into a turn from the hand's yaw: it needs "
                          "policy.instruction_grounding and policy.tcp_features")
     if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "

@@ -66,6 +66,36 @@ class SubgoalOffsetEncoder(nn.Module):
         return self.mlp(offset)
 
 
+def quarter_turn_to(yaw: torch.Tensor, tcp: torch.Tensor) -> torch.Tensor:
+    """The turn delta from the hand's yaw to a yaw given as (cos 4 psi, sin 4 psi) (B, 2), as
+    (cos 4 delta, sin 4 delta) (B, 2) (delta = psi - hand yaw, modulo a quarter turn). `tcp` (B, 9):
+    panda_tcp features, whose rotation's first column (the tcp's x axis, at 3:6) gives the hand's yaw."""
+    hand = 4.0 * torch.atan2(tcp[:, 4], tcp[:, 3]).to(yaw.dtype)
+    ch, sh = torch.cos(hand), torch.sin(hand)
+    c, s = yaw[:, 0], yaw[:, 1]
+    return torch.stack([c * ch + s * sh, s * ch - c * sh], dim=-1)
+
+
+class SubgoalYawEncoder(nn.Module):
+    """The grounding's yaw (cos 4 psi, sin 4 psi) (B, 2) and the turn to it from the hand's own yaw
+    (`quarter_turn_to`) -> a term (B, D) added to Q_s.
+
+    The turn is what the DiT acts on: how far to rotate the wrist, modulo a quarter turn, to close on
+    the block's faces; it would otherwise have to compose it from the yaw and the tcp's rotation
+    features. Detached, with its output layer at zero, as SubgoalOffsetEncoder."""
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(4, dim), nn.SiLU(), nn.Linear(dim, dim))
+        nn.init.zeros_(self.mlp[2].weight)
+        nn.init.zeros_(self.mlp[2].bias)
+
+    def forward(self, yaw: torch.Tensor, tcp: torch.Tensor) -> torch.Tensor:
+        """yaw (B, 2) the grounding's (cos 4 psi, sin 4 psi); tcp (B, 9) panda_tcp features."""
+        yaw = yaw.detach()
+        return self.mlp(torch.cat([yaw, quarter_turn_to(yaw, tcp)], dim=-1))
+
+
 class FlowMatchingPolicy(nn.Module):
     """System 1: Video Former -> Q_p; state MLP -> Q_s; DiT velocity field over action chunks."""
 
@@ -118,6 +148,12 @@ class FlowMatchingPolicy(nn.Module):
                 raise ValueError("policy.subgoal_offset reads the instruction grounding's sub-goal: it needs "
                                  "policy.instruction_grounding")
             self.subgoal_offset = SubgoalOffsetEncoder(dim)
+        self.subgoal_yaw = None
+        if config.subgoal_yaw:
+            if self.grounding is None:
+                raise ValueError("policy.subgoal_yaw is a yaw the instruction grounding predicts: it needs "
+                                 "policy.instruction_grounding")
+            self.subgoal_yaw = SubgoalYawEncoder(dim)
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
             # One set of statistics per view and feature element, shared by the T+1 frames.
@@ -161,8 +197,9 @@ class FlowMatchingPolicy(nn.Module):
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
         configured (and, with `subgoal_offset`, the sub-goal seen from the tcp position); the
         cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M); the grounding's
-        predicted sub-goal (B, 3) in tcp feature units, or None without grounding. `tcp` (B, 9): the
-        tool-centre point's features (panda_tcp), needed with `subgoal_offset` or `grounding_reads_tcp`."""
+        predicted sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then its yaw's
+        (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
+        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw` or `grounding_reads_tcp`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -172,11 +209,13 @@ class FlowMatchingPolicy(nn.Module):
                 if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_FEATURE_DIM)):
                     got = None if tcp is None else tuple(tcp.shape)
                     raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
-                                     f"(policy.subgoal_offset / policy.grounding_reads_tcp); got {got}")
+                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp); got {got}")
                 goal, subgoal = self._ground(vl, vl_mask, tcp)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
-                    q_s = q_s + self.subgoal_offset(subgoal, tcp[:, :3]).to(q_s.dtype)
+                    q_s = q_s + self.subgoal_offset(subgoal[:, :3], tcp[:, :3]).to(q_s.dtype)
+                if self.subgoal_yaw is not None:
+                    q_s = q_s + self.subgoal_yaw(subgoal[:, 3:5], tcp).to(q_s.dtype)
             parts.append(vl)
             masks.append(vl_mask)
         if self.uses_dynamics:
@@ -202,12 +241,14 @@ class FlowMatchingPolicy(nn.Module):
 
     @property
     def reads_tcp(self) -> bool:
-        """Whether conditions() needs the tcp features (`subgoal_offset` or `grounding_reads_tcp`)."""
-        return self.subgoal_offset is not None or self.config.grounding_reads_tcp
+        """Whether conditions() needs the tcp features (`subgoal_offset`, `subgoal_yaw` or
+        `grounding_reads_tcp`)."""
+        return self.subgoal_offset is not None or self.subgoal_yaw is not None or self.config.grounding_reads_tcp
 
     def _new_grounding(self) -> InstructionGrounding:
         c = self.config
-        return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0)
+        return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0,
+                                    yaw_tokens=self.vl_fixed_positions if c.subgoal_yaw else 0)
 
     def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         fixed = self.vl_fixed_positions
@@ -237,8 +278,9 @@ class FlowMatchingPolicy(nn.Module):
     def predict_subgoal(
         self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl (and, with
-        `grounding_reads_tcp`, the tcp features (B, 9))."""
+        """The instruction grounding's sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then
+        its yaw's (cos 4 psi, sin 4 psi)), from Q_vl (and, with `grounding_reads_tcp`, the tcp
+        features (B, 9))."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp)[1]

@@ -10,6 +10,7 @@ Actions leave the model unnormalised; the model applies the normalisation statis
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -310,6 +311,22 @@ class TriVLA(nn.Module):
         """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
         tool-centre-point position [m] in the arm's base frame (ValueError without a grounding).
         `state` (state_dim,), the unnormalised robot state: required with policy.grounding_reads_tcp."""
+        subgoal = self._grounding_output(static_rgb, wrist_rgb, instruction, state)
+        return denormalize_position(subgoal[:3]).numpy()
+
+    @torch.inference_mode()
+    def predict_subgoal_yaw(
+        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
+    ) -> float:
+        """The hand's yaw [rad] System 1's instruction grounding predicts at the next gripper event,
+        modulo a quarter turn: in [-pi/4, pi/4) (ValueError without policy.subgoal_yaw)."""
+        if not self.config.policy.subgoal_yaw:
+            raise ValueError("this model's grounding predicts no yaw (policy.subgoal_yaw is off)")
+        c, s = self._grounding_output(static_rgb, wrist_rgb, instruction, state)[3:5].tolist()
+        return float((math.atan2(s, c) / 4.0 + math.pi / 4) % (math.pi / 2) - math.pi / 4)
+
+    def _grounding_output(self, static_rgb, wrist_rgb, instruction, state) -> torch.Tensor:
+        """The grounding's raw sub-goal of one observation, float64 (3,) or (5,) (see predict_subgoal)."""
         if self.policy.grounding is None:
             raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
         pol = self.config.policy
@@ -321,7 +338,7 @@ class TriVLA(nn.Module):
         tcp = self.tcp_features(torch.from_numpy(state)[None].to(self.device)).float() if pol.grounding_reads_tcp else None
         subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
                                               tcp=tcp)
-        return denormalize_position(subgoal[0].double().cpu()).numpy()
+        return subgoal[0].double().cpu()
 
     @torch.inference_mode()
     def encode_state(self, state: np.ndarray, embodiment_id: int = 0) -> np.ndarray:
@@ -556,7 +573,8 @@ class TriVLA(nn.Module):
         return self.encode_vision_language_batch(batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]))
 
     def _subgoal_loss(self, batch: Mapping[str, Any], subgoal: torch.Tensor) -> torch.Tensor:
-        """grounding_loss of predicted sub-goals (B, 3) against the batch's labels, after checking them."""
+        """grounding_loss of predicted sub-goals (B, 3) or (B, 5) against the batch's labels ("subgoal_position",
+        and "subgoal_yaw" for a grounding with a yaw), after checking them."""
         b = subgoal.shape[0]
         if "subgoal_position" not in batch:
             raise ValueError("batch is missing 'subgoal_position', the instruction grounding's labels "
@@ -569,7 +587,15 @@ class TriVLA(nn.Module):
             counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
             if tuple(counts.shape) != (b,):
                 raise ValueError(f"batch['subgoal_is_approach'] must be ({b},); got {tuple(counts.shape)}")
-        return grounding_loss(subgoal, target, counts)
+        yaw = None
+        if subgoal.shape[-1] == 5:
+            if "subgoal_yaw" not in batch:
+                raise ValueError("batch is missing 'subgoal_yaw', the grounding's yaw labels (policy.subgoal_yaw; "
+                                 "a dataset with observation.tcp_pose)")
+            yaw = self._batch_tensor(batch, "subgoal_yaw")
+            if tuple(yaw.shape) != (b, 2) or not torch.isfinite(yaw).all():
+                raise ValueError(f"batch['subgoal_yaw'] must be finite ({b}, 2); got {tuple(yaw.shape)}")
+        return grounding_loss(subgoal, target, counts, yaw)
 
     def compute_video_loss(
         self, batch: Mapping[str, Any], *, generator: torch.Generator | None = None

@@ -67,6 +67,7 @@ def config_from_args(args: argparse.Namespace):
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
         subgoal_offset=args.subgoal_offset,
+        subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
         grounding_reads_tcp=args.grounding_reads_tcp,
         clip_seconds=args.clip_seconds,
@@ -184,6 +185,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "
                              "has none)")
+    parser.add_argument("--subgoal-yaw", action="store_true",
+                        help="policy, with --grounding-weight: the instruction grounding also predicts the hand's yaw "
+                             "at its sub-goal (modulo a quarter turn) and System 1 reads it; bind it first (a bind "
+                             "run adds a fresh yaw head to --init's grounding), then follow")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

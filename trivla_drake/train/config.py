@@ -158,6 +158,10 @@ class TrainConfig:
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
+    # policy stage, with a grounding: the grounding also predicts the hand's yaw at its sub-goal, modulo a
+    # quarter turn, and System 1 reads it (`PolicyConfig.subgoal_yaw`). A bind run from a checkpoint
+    # without it adds a fresh yaw head; a follow run needs a grounding bound with it.
+    subgoal_yaw: bool = False
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -244,6 +248,10 @@ class TrainConfig:
             raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
                              "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
                              "the tcp features (drop --no-tcp-features)")
+        if self.subgoal_yaw and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
+            raise ValueError("subgoal_yaw (--subgoal-yaw) has System 1's instruction grounding predict the grasp's "
+                             "yaw: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and the tcp "
+                             "features (drop --no-tcp-features)")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
         if self.dense_weight and self.stage != "vlm":

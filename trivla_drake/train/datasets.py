@@ -314,6 +314,7 @@ class PolicyFeatureDataset:
         }
         if "subgoal_position" in sample:
             item["subgoal_position"] = torch.from_numpy(np.asarray(sample["subgoal_position"], dtype=np.float32))
+            item["subgoal_yaw"] = torch.from_numpy(np.asarray(sample["subgoal_yaw"], dtype=np.float32))
             item["subgoal_is_approach"] = torch.tensor(bool(sample["subgoal_is_approach"]))
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
@@ -347,7 +348,7 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
             q_vl[b, :n] = it["q_vl"].float()
             mask[b, :n] = True
         batch["q_vl"], batch["q_vl_mask"] = q_vl, mask
-    for key in ("dynamics_static", "dynamics_wrist", "subgoal_position"):
+    for key in ("dynamics_static", "dynamics_wrist", "subgoal_position", "subgoal_yaw"):
         if key in items[0]:
             batch[key] = torch.stack([it[key] for it in items]).float()
     if "subgoal_is_approach" in items[0]:

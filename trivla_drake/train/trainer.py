@@ -59,6 +59,7 @@ def apply_ablations(
     instruction_grounding: bool = False,
     subgoal_offset: bool = False,
     grounding_reads_tcp: bool = False,
+    subgoal_yaw: bool = False,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
@@ -67,7 +68,8 @@ def apply_ablations(
     where it has none, with `instruction_grounding`, a fresh instruction grounding in System 1
     where it has none, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
     where it has none and, with `grounding_reads_tcp`, a grounding that reads the tcp features
-    (its sub-goal head's first layer and tcp path fresh) where it reads none, as a rebuilt model that keeps every weight that still fits. A system missing
+    (its sub-goal head's first layer and tcp path fresh) where it reads none and, with `subgoal_yaw`,
+    a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
     from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -83,16 +85,18 @@ def apply_ablations(
     grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
     offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
     reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
+    yaw = grounding and tcp and (cfg.policy.subgoal_yaw or subgoal_yaw)
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
-            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp):
+            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp,
+            cfg.policy.subgoal_yaw) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
                                    instruction_grounding=grounding, subgoal_offset=offset,
-                                   grounding_reads_tcp=reads_tcp),
+                                   grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
     )
     tokenizers = {}
@@ -145,7 +149,8 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
                                         vl_position_embedding=config.vl_position_embedding and config.use_system2,
                                         instruction_grounding=config.grounding_weight > 0,
                                         subgoal_offset=config.subgoal_offset,
-                                        grounding_reads_tcp=config.grounding_reads_tcp),
+                                        grounding_reads_tcp=config.grounding_reads_tcp,
+                                        subgoal_yaw=config.subgoal_yaw),
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
             dense_classes=_dense_classes(config) if config.use_system2 else 0,
@@ -170,12 +175,16 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
             raise ValueError(f"grounding_reads_tcp (--grounding-reads-tcp) changes the instruction grounding, which a "
                              f"follow run keeps as its {where} has it (reading no tcp): bind one with "
                              f"--grounding-reads-tcp first")
+        if config.grounding_phase == "follow" and config.subgoal_yaw and not model.config.policy.subgoal_yaw:
+            raise ValueError(f"subgoal_yaw (--subgoal-yaw) adds a yaw head to the instruction grounding, which a "
+                             f"follow run keeps as its {where} has it (with none): bind one with --subgoal-yaw first")
         if config.keep_grounding and model.policy.grounding is None:
             raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
                              f"which has none: bind one without --keep-grounding first")
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
-                                config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp)
+                                config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp,
+                                config.subgoal_yaw)
         if config.grounding_phase == "bind" and not config.keep_grounding:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
