@@ -122,6 +122,8 @@ def test_the_model_trains_and_predicts_the_yaw_and_reads_it_in_system1():
     features = model.encode_dynamics(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], seed=0)
     before = model.sample_actions(q_vl, q_s, features, seed=0, state=obs["state"])
     assert torch.equal(model.policy.subgoal_yaw(torch.randn(1, 2), torch.randn(1, 9)), torch.zeros(1, 32))
+    with pytest.raises(ValueError, match="state is required.*subgoal_yaw"):
+        model.sample_actions(q_vl, q_s, features, seed=0)
     model.policy.subgoal_yaw.mlp[2].weight.data.normal_()
     assert not np.allclose(before, model.sample_actions(q_vl, q_s, features, seed=0, state=obs["state"]))
 

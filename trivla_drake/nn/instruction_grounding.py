@@ -11,8 +11,9 @@ dense auxiliary loss, and enters the DiT as a goal added to the state token Q_s.
 Positions are in panda_tcp's feature units, (p - centre) / scale, the same as the state token's
 tool-centre-point features, so the DiT can compare them. With `yaw_tokens`, it also predicts the
 hand's yaw at that event modulo a quarter turn, as (cos 4 psi, sin 4 psi) (data/subgoals.py): which
-way the block's faces turn. Without it the gripper came down 40-45 degrees off the faces in most
-failed grasps, its fingers on the block's top (results/grasp_yaw).
+way the block's faces turn: most of the shipped model's failed grasps came down 40-45 degrees off the
+faces, its fingers on the block's top. (Read from the images, this yaw learnt a shortcut from the
+demonstrations, in which the hand is always turned right near the block: results/grasp_yaw.)
 """
 
 from __future__ import annotations

@@ -259,7 +259,7 @@ class TriVLA(nn.Module):
             return None
         if state is None:
             raise ValueError("state is required: this System 1 reads the tool-centre point beside Q_s "
-                             "(policy.subgoal_offset / policy.grounding_reads_tcp), which it computes from the "
+                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp), which it computes from the "
                              "robot state Q_s was encoded from")
         return self.tcp_features(state).to(dtype)
 
