@@ -227,6 +227,8 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_b
     --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
 trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --threads 2 \
     > results/grasp_yaw/grounding_check_bind_yaw.md
+trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --drive models/trivla_cpu \
+    --threads 2 > results/grasp_yaw/grounding_check_bind_yaw_along_policy.md
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_yaw" \
     --init "$RUNS/grounded_bind_yaw/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
     --subgoal-offset --subgoal-yaw

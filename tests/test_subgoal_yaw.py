@@ -156,11 +156,44 @@ def test_the_grounding_check_reports_the_yaw_along_the_approach():
     from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
 
     check = grounding_check(TriVLA(_config(True)).eval(), scenes=1)
-    assert set(check.approach_yaw) == {"far", "mid", "near"}
+    assert check.driver == "oracle" and set(check.approach_yaw) == {"far", "mid", "near"}
     for band, row in check.approach_yaw.items():  # one yaw query per query of the block approached
         assert row["queries"] == check.approach[band]["approached"]["queries"]
         assert 0 <= row["within_tolerance"] <= row["queries"]
+        # split by the hand's own yaw: the two parts add up
+        assert row["hand_right"][1] + row["hand_off"][1] == row["queries"]
+        assert row["hand_right"][0] + row["hand_off"][0] == row["within_tolerance"]
+    # the oracle turns its hand to the block's faces before it comes near
+    assert check.approach_yaw["near"]["hand_off"][1] == 0
     assert 0 <= check.approach_yaw["near"]["median_error_deg"] <= 45
-    assert "its yaw along the approach, against the approached block's faces" in format_grounding_check(check)
+    text = format_grounding_check(check)
+    assert "along the oracle's approach" in text and "its yaw along the approach" in text and "hand off 0/" in text
     plain = grounding_check(TriVLA(_config(False)).eval(), scenes=1, approach=False)
     assert plain.approach_yaw is None and "yaw" not in format_grounding_check(plain)
+
+
+def test_the_grounding_check_can_follow_a_learned_policy_chunk_by_chunk():
+    from trivla_drake.eval.grounding_check import grounding_check
+    from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
+
+    model = TriVLA(_config(True)).eval()
+
+    class Counting(TriVLAHarnessPolicy):
+        calls = 0
+
+        def act(self, observation):
+            Counting.calls += 1
+            return super().act(observation)
+
+    check = grounding_check(model, scenes=1, driver=Counting(model, name="counted"))
+    assert check.driver == "counted"
+    asked = sum(band["approached"]["queries"] for band in check.approach.values())
+    assert 1 <= asked <= Counting.calls  # once per chunk until the gripper first closes
+    assert sum(band["queries"] for band in check.approach_yaw.values()) == asked
+
+
+def test_drive_needs_grounding_scenes(capsys):
+    from trivla_drake.cli import main
+
+    assert main(["probe", "--drive", "oracle"]) == 2
+    assert "--drive chooses whose trajectories --grounding-scenes follows" in capsys.readouterr().err

@@ -162,6 +162,8 @@ def _cmd_probe(args) -> int:
         raise ValueError(f"--grounding-scenes must be >= 0, got {args.grounding_scenes}")
     if args.grasp_episodes < 0:
         raise ValueError(f"--grasp-episodes must be >= 0, got {args.grasp_episodes}")
+    if args.drive is not None and not args.grounding_scenes:
+        raise ValueError("--drive chooses whose trajectories --grounding-scenes follows: it needs --grounding-scenes")
     if args.grasp_episodes:
         from trivla_drake.eval.grasp_report import format_grasp_report, grasp_report, grasp_summary
         from trivla_drake.eval.policies import load_policy
@@ -175,7 +177,12 @@ def _cmd_probe(args) -> int:
         from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
 
         _set_torch_threads(args.threads)
-        check = grounding_check(load_model(args.checkpoint), scenes=args.grounding_scenes)
+        driver = None
+        if args.drive is not None:
+            from trivla_drake.eval.policies import load_policy
+
+            driver = load_policy(args.drive)
+        check = grounding_check(load_model(args.checkpoint), scenes=args.grounding_scenes, driver=driver)
         print(json.dumps(check.to_dict()) if args.json else format_grounding_check(check))
         return 0
     if args.data is None:
@@ -281,6 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--grounding-scenes", type=int, default=0,
                        help="instead: check System 1's instruction grounding on N unseen lift_block scenes "
                             "(is its sub-goal nearest the block each colour word names?)")
+    probe.add_argument("--drive", default=None, metavar="POLICY",
+                       help="with --grounding-scenes: follow this policy's trajectories (a checkpoint directory "
+                            "or trivla; default: the oracle's), where the grounding guides in closed loop")
     probe.add_argument("--grasp-episodes", type=int, default=0,
                        help="instead: N unseen episodes each of lift, stack and place in bowl; where the gripper "
                             "first closes against the named block and the grounding's sub-goal (--checkpoint may "

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from trivla_drake.tasks.scene import BLOCK_COLORS
+from trivla_drake.tasks.scene import BLOCK_COLORS, fold_quarter_turn, hand_yaw
 
 CHECK_TASK = "lift_block"  # its first gripper event is the grasp of the block the instruction names
 # Bands of the tcp's 3-D distance to the named block [m] along the approach: (name, lower, upper).
@@ -49,6 +49,7 @@ class GroundingCheck:
     # and the median |error| [deg] (modulo a quarter turn, so at most 45). None without it. Its read-out
     # does not read the instruction: the wrist view near the block shows which one.
     approach_yaw: dict[str, dict] | None = None
+    driver: str | None = None  # whose trajectories the approach follows ("oracle", or a policy's name)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -71,8 +72,6 @@ def ask_every_colour(model, observation: dict, instruction: str, named: str,
 def yaw_error_deg(model, observation: dict, instruction: str, block_yaw: float) -> float:
     """The grounding's yaw (policy.subgoal_yaw) for `instruction` on one observation, against the
     block's faces at `block_yaw` [rad]: the error in degrees, modulo a quarter turn, in [-45, 45)."""
-    from trivla_drake.tasks.scene import fold_quarter_turn
-
     yaw = model.predict_subgoal_yaw(observation["static_rgb"], observation["wrist_rgb"], instruction,
                                     observation["state"])
     return float(np.degrees(fold_quarter_turn(yaw - block_yaw)))
@@ -87,22 +86,26 @@ class _ApproachProbe:
 
     name, uses_images, privileged = "oracle+grounding", True, True
 
-    def __init__(self, model, every: int) -> None:
+    def __init__(self, model, every: int, driver=None) -> None:
         from trivla_drake.tasks.oracle import OraclePolicy
 
-        self._model, self._every, self._oracle = model, every, OraclePolicy()
+        self._model, self._every = model, every
+        self._driver = OraclePolicy() if driver is None else driver
         self.records: list[tuple[float, bool, float, bool]] = []
-        self.yaw_records: list[tuple[float, float]] = []  # (tcp distance [m], yaw error [deg]), with a yaw
+        # (tcp distance [m], the grounding's yaw error [deg], the hand's own yaw error [deg]), with a yaw
+        self.yaw_records: list[tuple[float, float, float]] = []
         self.error: Exception | None = None
         self._steps, self._closed = 0, False
 
     def reset(self, instruction: str, seed: int) -> None:
-        self._oracle.reset(instruction, seed)
+        self._driver.reset(instruction, seed)
         self._steps, self._closed = 0, False
 
     def act(self, observation: dict) -> np.ndarray:
-        action = np.asarray(self._oracle.act(observation))
-        if not self._closed and self._steps % self._every == 0 and self.error is None:
+        # A learned driver answers a chunk per call: then every call is asked (it is one every chunk).
+        rows = np.atleast_2d(np.asarray(self._driver.act(observation)))
+        due = len(rows) > 1 or self._steps % self._every == 0
+        if not self._closed and due and self.error is None:
             try:
                 named, scene = observation["privileged"]["task"].params[0], observation["privileged"]["scene"]
                 blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
@@ -111,25 +114,29 @@ class _ApproachProbe:
                                                            named, blocks):
                     self.records.append((reach, colour == named, error, hit))
                 if self._model.config.policy.subgoal_yaw:
+                    faces = scene.block_yaw(named)
+                    hand = np.degrees(fold_quarter_turn(hand_yaw(np.asarray(observation["tcp_pose"])) - faces))
                     self.yaw_records.append((reach, yaw_error_deg(self._model, observation, observation["instruction"],
-                                                                  scene.block_yaw(named))))
+                                                                  faces), float(hand)))
             except Exception as error:  # noqa: BLE001 - raised by approach_errors after the episode
                 self.error = error
-        self._closed = self._closed or float(action[6]) <= 0.0
-        self._steps += 1
-        return action
+        self._closed = self._closed or bool(np.any(rows[:, 6] <= 0.0))
+        self._steps += len(rows)
+        return rows if len(rows) > 1 else rows[0]
 
 
-def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY
-                    ) -> tuple[list[tuple[float, bool, float, bool]], list[tuple[float, float]]]:
-    """Every `every` steps of the oracle's approach, until it first closes the gripper, in `scenes`
+def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY, driver=None
+                    ) -> tuple[list[tuple[float, bool, float, bool]], list[tuple[float, float, float]]]:
+    """Every `every` steps of the oracle's approach (or, with `driver`, a harness policy's: every chunk
+    it plans), until it first closes the gripper, in `scenes`
     lift_block scenes from `seed` on, one record per block colour asked: (tcp distance to the block
     approached [m], asked for that block, x-y error of the sub-goal to the block asked [m], the
     sub-goal nearest the block asked); and, for a grounding with a yaw (policy.subgoal_yaw), one per
-    query of the block approached: (tcp distance [m], yaw error to its faces [deg]); else none."""
+    query of the block approached: (tcp distance [m], yaw error to its faces [deg], the hand's own yaw
+    error to them [deg]); else none."""
     from trivla_drake.eval.episode import run_episode
 
-    probe = _ApproachProbe(model, every)
+    probe = _ApproachProbe(model, every, driver)
     for k in range(scenes):
         run_episode(CHECK_TASK, seed + k, probe)
         if probe.error is not None:
@@ -137,11 +144,12 @@ def approach_errors(model, scenes: int, seed: int, every: int = APPROACH_EVERY
     return probe.records, probe.yaw_records
 
 
-def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = True) -> GroundingCheck:
+def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = True, driver=None) -> GroundingCheck:
     """Asks `model`'s grounding (a TriVLA with `policy.instruction_grounding`) for every block colour
     in `scenes` scenes of lift_block drawn from seeds `seed`, `seed` + 1, ... (1000 on: scenes the
     demonstrations, collected from seed 0, never showed), and with `approach`, along the oracle's
-    approach in the same scenes."""
+    approach in the same scenes; with `driver` (a harness policy, e.g. a TriVLAHarnessPolicy), along
+    its trajectories instead, which are what a grounding guides in closed loop."""
     from trivla_drake.eval.episode import shared_env
     from trivla_drake.tasks.suite import get_task, sample_task_instance
 
@@ -165,7 +173,8 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
                            median_error_m=float(np.median(errors)), chance=1.0 / len(BLOCK_COLORS))
 
     if approach:
-        records, yaw_records = approach_errors(model, scenes, seed)
+        records, yaw_records = approach_errors(model, scenes, seed, driver=driver)
+        check.driver = "oracle" if driver is None else getattr(driver, "name", type(driver).__name__)
         records = np.asarray(records, dtype=float).reshape(-1, 4)
         check.approach = {}
         for band, low, high in APPROACH_BANDS:
@@ -181,11 +190,19 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
 
 
 def _yaw_bands(records: np.ndarray) -> dict[str, dict]:
+    """Per band, the yaw queries, how many are within tolerance and their median |error|; and the same
+    counts split by whether the hand itself was within tolerance of the faces ("hand_right" /
+    "hand_off"): a read-out that takes the yaw from the wrist view's own turn is right only with the
+    hand already right."""
     bands = {}
     for band, low, high in APPROACH_BANDS:
-        errors = np.abs(records[(records[:, 0] >= low) & (records[:, 0] < high), 1])
-        bands[band] = {"queries": int(len(errors)), "within_tolerance": int(np.sum(errors <= YAW_TOLERANCE_DEG)),
-                       "median_error_deg": float(np.median(errors)) if len(errors) else None}
+        inside = records[(records[:, 0] >= low) & (records[:, 0] < high)]
+        errors, hand_right = np.abs(inside[:, 1]), np.abs(inside[:, 2]) <= YAW_TOLERANCE_DEG
+        right = errors <= YAW_TOLERANCE_DEG
+        bands[band] = {"queries": int(len(errors)), "within_tolerance": int(right.sum()),
+                       "median_error_deg": float(np.median(errors)) if len(errors) else None,
+                       "hand_right": [int(right[hand_right].sum()), int(hand_right.sum())],
+                       "hand_off": [int(right[~hand_right].sum()), int((~hand_right).sum())]}
     return bands
 
 
@@ -201,17 +218,21 @@ def _format_yaw(check: GroundingCheck) -> str:
     if check.approach_yaw is None:
         return ""
     lines = ["", f"its yaw along the approach, against the approached block's faces (within {YAW_TOLERANCE_DEG:.0f} "
-                 "degrees; a guess: a third; median error):"]
+                 "degrees; a guess: a third; median error; then split by whether the hand's own yaw was within "
+                 f"{YAW_TOLERANCE_DEG:.0f} degrees of them):"]
     for band, row in check.approach_yaw.items():
         error = "-" if row["median_error_deg"] is None else f"{row['median_error_deg']:.0f} degrees"
-        lines.append(f"  {band}: {row['within_tolerance']}/{row['queries']}, {error}")
+        (right, of_right), (off, of_off) = row["hand_right"], row["hand_off"]
+        lines.append(f"  {band}: {row['within_tolerance']}/{row['queries']}, {error}; hand turned right "
+                     f"{right}/{of_right}, hand off {off}/{of_off}")
     return "\n".join(lines)
 
 
 def _format_approach(check: GroundingCheck) -> str:
     if check.approach is None:
         return ""
-    lines = ["", "along the oracle's approach (tcp distance to the block approached: asking for that block / "
+    whose = "the oracle's approach" if check.driver == "oracle" else f"the approach of policy {check.driver}"
+    lines = ["", f"along {whose} (tcp distance to the block approached: asking for that block / "
                  "for another; nearest the block asked, median x-y error):"]
     for band, low, high in APPROACH_BANDS:
         where = f"> {100 * low:.0f} cm" if high == float("inf") else f"{100 * low:.0f}-{100 * high:.0f} cm"
