@@ -270,6 +270,6 @@ def test_the_approach_check_raises_what_the_model_raises(monkeypatch):
     def broken(*args):
         raise RuntimeError("broken grounding")
 
-    monkeypatch.setattr(model, "predict_subgoal", broken)
+    monkeypatch.setattr(model, "predict_grounding", broken)
     with pytest.raises(RuntimeError, match="broken grounding"):
         approach_errors(model, scenes=1, seed=1000)

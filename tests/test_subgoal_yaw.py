@@ -10,7 +10,7 @@ import pytest
 import torch
 from pydrake.math import RotationMatrix
 
-from trivla_drake.data.subgoals import next_gripper_event_yaws, quarter_turn_yaw_features
+from trivla_drake.data.subgoals import next_gripper_event_yaws, quarter_turn_yaw_features, quaternion_yaw
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding, grounding_loss
@@ -35,6 +35,7 @@ def _config(yaw: bool):
 
 def test_the_yaw_features_are_the_hand_yaw_modulo_a_quarter_turn():
     for yaw in (-1.2, -0.3, 0.0, 0.5, 1.4):
+        assert quaternion_yaw(_quaternion(yaw)) == pytest.approx(yaw)
         np.testing.assert_allclose(quarter_turn_yaw_features(_quaternion(yaw)),
                                    [math.cos(4 * yaw), math.sin(4 * yaw)], atol=1e-6)
         # A quarter turn closes on the same faces; an eighth turn is the worst grasp, the opposite.
@@ -97,7 +98,9 @@ def test_the_model_trains_and_predicts_the_yaw_and_reads_it_in_system1():
     model = TriVLA(_config(True)).eval()
     obs = example_observation()
     yaw = model.predict_subgoal_yaw(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], obs["state"])
-    assert -math.pi / 4 <= yaw < math.pi / 4
+    assert -math.pi / 4 < yaw <= math.pi / 4
+    position, same_yaw = model.predict_grounding(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], obs["state"])
+    assert same_yaw == yaw and position.shape == (3,)
     assert model.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"], obs["state"]).shape == (3,)
     with pytest.raises(ValueError, match="predicts no yaw"):
         TriVLA(_config(False)).predict_subgoal_yaw(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"])

@@ -65,17 +65,22 @@ def next_gripper_event_positions(gripper: np.ndarray, tcp_position: np.ndarray) 
     return tcp_position[next_gripper_event_frames(gripper)].astype(np.float32)
 
 
-def quarter_turn_yaw_features(tcp_quaternion: np.ndarray) -> np.ndarray:
-    """The hand's yaw psi about world z of tcp orientations (..., 4) as quaternions (w, x, y, z), as
-    (cos 4 psi, sin 4 psi) (..., 2): the yaw modulo a quarter turn, continuous across it. A cube's faces
-    repeat every quarter turn, so a grasp at psi and at psi + 90 degrees closes on the same faces;
-    the features tell the faces apart from the 45-degree turn between them, where a grasp fails."""
+def quaternion_yaw(tcp_quaternion: np.ndarray) -> np.ndarray:
+    """The hand's yaw psi [rad] about world z of tcp orientations (..., 4) as quaternions (w, x, y, z):
+    the direction of the tcp's x axis (the rotation matrix's first column), as scene.hand_yaw reads it."""
     q = np.asarray(tcp_quaternion, dtype=np.float64)
     if q.shape[-1] != 4:
         raise ValueError(f"tcp_quaternion must be (..., 4) as (w, x, y, z); got {q.shape}")
     w, x, y, z = np.moveaxis(q, -1, 0)
-    # The tcp's x axis in the world (the rotation matrix's first column), as scene.hand_yaw reads it.
-    psi = np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+    return np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quarter_turn_yaw_features(tcp_quaternion: np.ndarray) -> np.ndarray:
+    """The hand's yaw psi (`quaternion_yaw`) of tcp orientations (..., 4) as (cos 4 psi, sin 4 psi)
+    (..., 2): the yaw modulo a quarter turn, continuous across it. A cube's faces repeat every quarter
+    turn, so a grasp at psi and at psi + 90 degrees closes on the same faces; the features tell the
+    faces apart from the 45-degree turn between them, where a grasp fails."""
+    psi = quaternion_yaw(tcp_quaternion)
     return np.stack([np.cos(4.0 * psi), np.sin(4.0 * psi)], axis=-1).astype(np.float32)
 
 

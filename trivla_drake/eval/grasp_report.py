@@ -74,16 +74,6 @@ class _SubgoalRecorder:
         return self.chunks[int(np.searchsorted(starts, step, side="right")) - 1][1] if self.chunks else None
 
 
-def _yaw_error_deg(pose7: np.ndarray, block_yaw: float) -> float:
-    """The yaw of a downward tcp pose (x, y, z, qw, qx, qy, qz) against a block's faces [deg], folded
-    into [-45, 45)."""
-    from trivla_drake.tasks.scene import fold_quarter_turn
-
-    w, x, y, z = (float(v) for v in pose7[3:7])
-    yaw = np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))  # as scene.hand_yaw reads it
-    return float(np.degrees(fold_quarter_turn(yaw - block_yaw)))
-
-
 def _xy(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(np.asarray(a)[:2] - np.asarray(b)[:2]))
 
@@ -93,7 +83,9 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
     """Runs `episodes_per_task` episodes of each of `tasks` (seeds `seed`, `seed` + 1, ...: 1000 on
     are scenes the demonstrations never saw) with `policy` (a harness policy; a TriVLA one with a
     grounding also gets its sub-goals recorded) and reports where its gripper first closed."""
+    from trivla_drake.data.subgoals import quaternion_yaw
     from trivla_drake.eval.episode import run_episode, shared_env
+    from trivla_drake.tasks.scene import yaw_to_faces_deg
     from trivla_drake.tasks.suite import get_task, sample_task_instance
 
     if episodes_per_task < 1:
@@ -133,7 +125,7 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
                 row.close_to_block_m = distances[named_colour]
                 row.nearest_block_named = min(distances, key=distances.get) == named_colour
                 row.close_height_m = float(tcp[2])
-                row.close_yaw_error_deg = _yaw_error_deg(pose, spec.blocks[named_colour].yaw)
+                row.close_yaw_error_deg = yaw_to_faces_deg(quaternion_yaw(pose[3:7]), spec.blocks[named_colour].yaw)
                 subgoal = recorder.subgoal_at(step)
                 if subgoal is not None:
                     row.close_subgoal_to_block_m = _xy(subgoal, named)

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from trivla_drake.tasks.scene import BLOCK_COLORS, fold_quarter_turn, hand_yaw
+from trivla_drake.tasks.scene import BLOCK_COLORS, hand_yaw, yaw_to_faces_deg
 
 CHECK_TASK = "lift_block"  # its first gripper event is the grasp of the block the instruction names
 # Bands of the tcp's 3-D distance to the named block [m] along the approach: (name, lower, upper).
@@ -40,7 +40,7 @@ class GroundingCheck:
     hits: int
     median_error_m: float
     chance: float
-    # Along the oracle's approach (None when not measured), per band of the tcp's distance to the block
+    # Along the approach of `driver` (None when not measured), per band of the tcp's distance to the block
     # approached (APPROACH_BANDS): queries, hits and median x-y error [m] (None: no query) when asking
     # for the block approached ("approached") and for the other blocks ("other").
     approach: dict[str, dict[str, dict]] | None = None
@@ -56,30 +56,24 @@ class GroundingCheck:
 
 
 def ask_every_colour(model, observation: dict, instruction: str, named: str,
-                     blocks: dict[str, np.ndarray]) -> list[tuple[str, float, bool]]:
+                     blocks: dict[str, np.ndarray]) -> list[tuple[str, float, bool, float | None]]:
     """The grounding asked once per block colour (`named` in `instruction` replaced by it), on one
     observation (its images and state): per colour, (colour, x-y error of the sub-goal to that
-    colour's block in `blocks` [m], whether that block is the sub-goal's nearest)."""
+    colour's block in `blocks` [m], whether that block is the sub-goal's nearest, the grounding's yaw
+    [rad] with policy.subgoal_yaw, else None)."""
     answers = []
     for colour in BLOCK_COLORS:
-        subgoal = model.predict_subgoal(observation["static_rgb"], observation["wrist_rgb"],
-                                        instruction.replace(named, colour), observation["state"])
+        subgoal, yaw = model.predict_grounding(observation["static_rgb"], observation["wrist_rgb"],
+                                               instruction.replace(named, colour), observation["state"])
         distance = {c: float(np.linalg.norm((subgoal - p)[:2])) for c, p in blocks.items()}
-        answers.append((colour, distance[colour], min(distance, key=distance.get) == colour))
+        answers.append((colour, distance[colour], min(distance, key=distance.get) == colour, yaw))
     return answers
 
 
-def yaw_error_deg(model, observation: dict, instruction: str, block_yaw: float) -> float:
-    """The grounding's yaw (policy.subgoal_yaw) for `instruction` on one observation, against the
-    block's faces at `block_yaw` [rad]: the error in degrees, modulo a quarter turn, in [-45, 45)."""
-    yaw = model.predict_subgoal_yaw(observation["static_rgb"], observation["wrist_rgb"], instruction,
-                                    observation["state"])
-    return float(np.degrees(fold_quarter_turn(yaw - block_yaw)))
-
-
 class _ApproachProbe:
-    """A harness policy: the oracle drives, and until its gripper first closes the grounding is asked
-    for every block colour every `every` steps. Records (tcp distance to the block approached [m],
+    """A harness policy: the oracle (or `driver`, a harness policy) drives, and until its gripper first
+    closes the grounding is asked for every block colour every `every` steps (every chunk of a driver
+    that plans chunks). Records (tcp distance to the block approached [m],
     whether the colour asked is that block's, x-y error to the block asked [m], whether the sub-goal
     is nearest the block asked). An error inside the model is kept and raised after the episode (the
     runner would count it as the episode's failure and go on)."""
@@ -110,14 +104,13 @@ class _ApproachProbe:
                 named, scene = observation["privileged"]["task"].params[0], observation["privileged"]["scene"]
                 blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
                 reach = float(np.linalg.norm(np.asarray(observation["tcp_pose"])[:3, 3] - blocks[named]))
-                for colour, error, hit in ask_every_colour(self._model, observation, observation["instruction"],
-                                                           named, blocks):
+                for colour, error, hit, yaw in ask_every_colour(self._model, observation, observation["instruction"],
+                                                                named, blocks):
                     self.records.append((reach, colour == named, error, hit))
-                if self._model.config.policy.subgoal_yaw:
-                    faces = scene.block_yaw(named)
-                    hand = np.degrees(fold_quarter_turn(hand_yaw(np.asarray(observation["tcp_pose"])) - faces))
-                    self.yaw_records.append((reach, yaw_error_deg(self._model, observation, observation["instruction"],
-                                                                  faces), float(hand)))
+                    if colour == named and yaw is not None:
+                        faces = scene.block_yaw(named)
+                        hand = hand_yaw(np.asarray(observation["tcp_pose"]))
+                        self.yaw_records.append((reach, yaw_to_faces_deg(yaw, faces), yaw_to_faces_deg(hand, faces)))
             except Exception as error:  # noqa: BLE001 - raised by approach_errors after the episode
                 self.error = error
         self._closed = self._closed or bool(np.any(rows[:, 6] <= 0.0))
@@ -166,7 +159,7 @@ def grounding_check(model, scenes: int = 10, seed: int = 1000, approach: bool = 
         observation = env.reset(spec)
         scene = env.scene()
         blocks = {colour: np.asarray(scene.block_position(colour)) for colour in BLOCK_COLORS}
-        for _, error, hit in ask_every_colour(model, observation, instance.instruction, named, blocks):
+        for _, error, hit, _ in ask_every_colour(model, observation, instance.instruction, named, blocks):
             hits += hit
             errors.append(error)
     check = GroundingCheck(scenes=scenes, queries=len(errors), hits=hits,

@@ -311,19 +311,27 @@ class TriVLA(nn.Module):
         """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
         tool-centre-point position [m] in the arm's base frame (ValueError without a grounding).
         `state` (state_dim,), the unnormalised robot state: required with policy.grounding_reads_tcp."""
-        subgoal = self._grounding_output(static_rgb, wrist_rgb, instruction, state)
-        return denormalize_position(subgoal[:3]).numpy()
+        return self.predict_grounding(static_rgb, wrist_rgb, instruction, state)[0]
 
     @torch.inference_mode()
     def predict_subgoal_yaw(
         self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
     ) -> float:
         """The hand's yaw [rad] System 1's instruction grounding predicts at the next gripper event,
-        modulo a quarter turn: in [-pi/4, pi/4) (ValueError without policy.subgoal_yaw)."""
+        modulo a quarter turn: in (-pi/4, pi/4] (ValueError without policy.subgoal_yaw)."""
         if not self.config.policy.subgoal_yaw:
             raise ValueError("this model's grounding predicts no yaw (policy.subgoal_yaw is off)")
-        c, s = self._grounding_output(static_rgb, wrist_rgb, instruction, state)[3:5].tolist()
-        return float((math.atan2(s, c) / 4.0 + math.pi / 4) % (math.pi / 2) - math.pi / 4)
+        return self.predict_grounding(static_rgb, wrist_rgb, instruction, state)[1]
+
+    @torch.inference_mode()
+    def predict_grounding(
+        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float | None]:
+        """Both of the grounding's answers from one pass: the sub-goal position (as `predict_subgoal`)
+        and, with policy.subgoal_yaw, its yaw (as `predict_subgoal_yaw`; None without)."""
+        subgoal = self._grounding_output(static_rgb, wrist_rgb, instruction, state)
+        yaw = math.atan2(float(subgoal[4]), float(subgoal[3])) / 4.0 if len(subgoal) == 5 else None
+        return denormalize_position(subgoal[:3]).numpy(), yaw
 
     def _grounding_output(self, static_rgb, wrist_rgb, instruction, state) -> torch.Tensor:
         """The grounding's raw sub-goal of one observation, float64 (3,) or (5,) (see predict_subgoal)."""

@@ -308,6 +308,12 @@ def fold_quarter_turn(angle: float) -> float:
     return (angle + math.pi / 4) % (math.pi / 2) - math.pi / 4
 
 
+def yaw_to_faces_deg(yaw: float, block_yaw: float) -> float:
+    """A hand's yaw against a block's faces at `block_yaw` (both [rad]), in degrees modulo a quarter
+    turn: in [-45, 45); near +-45 the open fingers come down on the block's corners."""
+    return math.degrees(fold_quarter_turn(float(yaw) - float(block_yaw)))
+
+
 def yaw_rotation(yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
