@@ -47,6 +47,7 @@ EPISODE_TASK_KEY = "trivla/task"
 # the setting, and the frames whose applied action was disturbed (missing: none was).
 ACTION_NOISE_KEY = "trivla/action_noise"
 PERTURBED_FRAMES_KEY = "trivla/perturbed_frames"
+YAW_TWISTS_KEY = "trivla/yaw_twists"  # the hand's yaw was twisted on its way to the first grasp (--yaw-twists)
 DETOURS_KEY = "trivla/detours"  # places the oracle visited before its task (eval/collect.py, --detours)
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {

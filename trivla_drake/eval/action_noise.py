@@ -11,6 +11,13 @@ end-effector velocity (random direction, `speed` m per step; rotation with `turn
 standard deviation per axis) is added to the expert's action. The gripper is never disturbed.
 Between bursts the expert's actions are applied unchanged, so it reaches its waypoints exactly.
 
+`YawTwists` is a second, targeted disturbance: once per episode, while the open hand comes down to
+its first grasp, its yaw is turned 17-43 degrees away from the expert's (the rotation the expert
+commands is replaced for those steps). The expert (with `OraclePolicy(turn_first=True)`) then
+holds its position until it has turned back, and only then goes down. A learned policy that comes
+near a block turned off its faces finds such states in the data, with the turn that recovers; in
+clean demonstrations the hand is always turned right before it is near (results/grasp_yaw).
+
 Which steps were disturbed is recorded (`Trajectory.perturbed`): a recorded action that comes after
 a disturbed step answers a state the earlier frame does not show, so training masks it out of that
 frame's action chunk (see `trivla_drake.data.samples`).
@@ -64,7 +71,8 @@ class BurstState:
         self.remaining = 0
         self.velocity = np.zeros(6)
 
-    def apply(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+    def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
+        """`observation` is not used (the interface of `YawTwistState.apply`)."""
         s, rng = self.settings, self.rng
         if self.remaining == 0 and rng.random() < s.rate:
             self.remaining = int(rng.integers(s.min_steps, s.max_steps + 1))
@@ -76,4 +84,60 @@ class BurstState:
         self.remaining -= 1
         applied = np.array(action, dtype=float)
         applied[:6] += self.velocity
+        return applied, True
+
+
+@dataclass(frozen=True)
+class YawTwists:
+    """Settings of the yaw twist (see the module docstring)."""
+
+    # The twist starts the first time the commanded tcp, descending with the gripper open and before
+    # the gripper first closes, is below a height drawn uniformly from this range [m].
+    start_z: tuple[float, float] = (0.06, 0.14)
+    # Total twist [rad], drawn uniformly; the sign is drawn too.
+    angle: tuple[float, float] = (0.3, 0.75)
+    # Rotation about the world's vertical per step while twisting [rad]; the step's translation stays the expert's.
+    rate: float = 0.04
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.start_z[0] <= self.start_z[1]:
+            raise ValueError(f"yaw twist start_z range must be 0 < low <= high, got {self.start_z}")
+        if not 0.0 < self.angle[0] <= self.angle[1] < np.pi / 4:
+            raise ValueError(f"yaw twist angle range must be 0 < low <= high < pi/4, got {self.angle}")
+        if not 0.0 < self.rate <= 0.05:
+            raise ValueError(f"yaw twist rate must be in (0, 0.05] rad per step, got {self.rate}")
+
+    def start(self, rng: np.random.Generator) -> "YawTwistState":
+        """A fresh twist for one episode, drawing from `rng`."""
+        return YawTwistState(self, rng)
+
+
+class YawTwistState:
+    """The twist of one episode: `apply(action, observation)` -> (applied action, disturbed?).
+
+    `observation['ee_target']` (4x4, the executor's commanded tcp pose) tells the height."""
+
+    def __init__(self, settings: YawTwists, rng: np.random.Generator) -> None:
+        self.settings = settings
+        self.start_z = float(rng.uniform(*settings.start_z))
+        angle = float(rng.uniform(*settings.angle))
+        self.steps = int(np.ceil(angle / settings.rate))
+        self.step_rate = float(rng.choice([-1.0, 1.0])) * angle / self.steps
+        self.remaining = -1  # -1: not started; then steps left; 0: done
+        self.closed = False
+
+    def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
+        if self.remaining == -1 and not self.closed:
+            if action[6] <= 0.0:
+                self.closed = True  # past the first grasp: this episode is not twisted
+            else:
+                if observation is None or "ee_target" not in observation:
+                    raise ValueError("YawTwists needs observation['ee_target'] (the commanded tcp pose)")
+                if action[2] < 0.0 and float(np.asarray(observation["ee_target"])[2, 3]) < self.start_z:
+                    self.remaining = self.steps
+        if self.remaining <= 0:
+            return action, False
+        self.remaining -= 1
+        applied = np.array(action, dtype=float)
+        applied[3:6] = (0.0, 0.0, self.step_rate)
         return applied, True

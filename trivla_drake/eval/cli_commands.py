@@ -46,6 +46,7 @@ def run_collect(args: argparse.Namespace) -> int:
             image_size=args.image_size,
             action_noise=args.action_noise,
             detours=args.detours,
+            yaw_twists=args.yaw_twists,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -122,6 +123,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
         help="before its task the oracle visits this many places just above blocks the instruction does not "
              "name (data for binding the instruction grounding, not for imitation; default 0). Episodes "
              "started from now on get this setting.",
+    )
+    parser.add_argument(
+        "--yaw-twists", action="store_true",
+        help="twist the hand's yaw 17-43 degrees once on its way down to the first grasp; the oracle turns "
+             "back before going on down (recovery data for the grasp's yaw; the recorded actions stay the "
+             "oracle's). Episodes started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")

@@ -8,6 +8,9 @@ and running the same command again resumes: attempts already committed or failed
 
 With `action_noise` > 0 the applied actions are disturbed in bursts (DART, eval/action_noise.py);
 the recorded actions stay the oracle's and each episode's metadata lists its disturbed frames.
+With `yaw_twists` the hand's yaw is twisted once on its way down to the first grasp and the oracle
+turns back before going on down (eval/action_noise.py, `YawTwists`); disturbed frames are listed as
+with `action_noise`.
 With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
 name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
@@ -28,13 +31,14 @@ from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
     DETOURS_KEY,
     EPISODE_TASK_KEY,
+    YAW_TWISTS_KEY,
     PERTURBED_FRAMES_KEY,
     LeRobotWriter,
     image_stats,
     vector_feature,
     video_feature,
 )
-from trivla_drake.eval.action_noise import PerturbationBursts
+from trivla_drake.eval.action_noise import PerturbationBursts, YawTwists
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
 
@@ -74,6 +78,9 @@ class CollectConfig:
     # (motions.detours): data for binding the instruction grounding, not for imitation. Recorded per
     # episode (DETOURS_KEY), so a resumed run may change it.
     detours: int = 0
+    # Twist the hand's yaw once on its way down to the first grasp; the oracle turns back before it
+    # goes on down (eval/action_noise.py, YawTwists). Recorded per episode (YAW_TWISTS_KEY).
+    yaw_twists: bool = False
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -85,13 +92,18 @@ class CollectConfig:
         if not self.tasks:
             raise ValueError("--tasks is empty")
         self.disturbance()  # validates --action-noise
+        if self.yaw_twists and self.action_noise:
+            raise ValueError("--yaw-twists and --action-noise cannot be combined: collect them into the same "
+                             "dataset in two runs")
         if isinstance(self.detours, bool) or not isinstance(self.detours, int) or self.detours < 0:
             raise ValueError(f"--detours must be an integer >= 0, got {self.detours!r}")
         for name in self.tasks:
             get_task(name)
 
-    def disturbance(self) -> PerturbationBursts | None:
-        """The perturbation bursts of `action_noise` (None when 0)."""
+    def disturbance(self) -> PerturbationBursts | YawTwists | None:
+        """The yaw twists of `yaw_twists`, or the perturbation bursts of `action_noise` (None when 0)."""
+        if self.yaw_twists:
+            return YawTwists()
         return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
@@ -116,7 +128,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
 
     seed = derive_seed(config.seed, task, attempt)
     result = run_episode(
-        task, seed, OraclePolicy(detours=config.detours), image_size=config.image_size, keep_trajectory=True,
+        task, seed, OraclePolicy(detours=config.detours, turn_first=config.yaw_twists), image_size=config.image_size, keep_trajectory=True,
         action_noise=config.disturbance(),
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
@@ -215,6 +227,8 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                             if config.action_noise
                             else {}
                         ),
+                        **({YAW_TWISTS_KEY: True, PERTURBED_FRAMES_KEY: result["perturbed_frames"]}
+                           if config.yaw_twists else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                     },
                 )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.eval.action_noise import BurstState, PerturbationBursts
+from trivla_drake.eval.action_noise import BurstState, PerturbationBursts, YawTwists, YawTwistState
 from trivla_drake.eval.env import TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
@@ -152,7 +152,7 @@ def _run_subtask(
     seed: int,
     max_steps: int,
     recorder: _Recorder,
-    disturbance: BurstState | None = None,
+    disturbance: BurstState | YawTwistState | None = None,
 ) -> tuple[EpisodeResult, dict]:
     """Drive `policy` on one task from the env's current state until success or `max_steps`;
     `disturbance` perturbs the applied actions (the recorded ones stay the policy's)."""
@@ -175,7 +175,7 @@ def _run_subtask(
                 obs.update(env.images())  # rendered only when the policy looks
             queue = list(as_action_rows(policy.act(obs)))
         action = queue.pop(0)
-        applied, perturbed = (action, False) if disturbance is None else disturbance.apply(action)
+        applied, perturbed = (action, False) if disturbance is None else disturbance.apply(action, obs)
         recorder.add(obs, action, perturbed)
         obs = env.step(applied, images=every_frame)
         step += 1
@@ -198,11 +198,12 @@ def run_episode(
     keep_trajectory: bool = False,
     max_steps: int | None = None,
     scenario: Scenario | None = None,
-    action_noise: PerturbationBursts | None = None,
+    action_noise: PerturbationBursts | YawTwists | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
 
-    `action_noise` disturbs the applied actions in bursts (DART data collection; its random draws
+    `action_noise` disturbs the applied actions in bursts, or twists the hand's yaw once on its way
+    down to the first grasp (DART data collection, eval/action_noise.py; its random draws
     come from their own stream derived from `seed`, so the scene is the same with and without).
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it

@@ -34,6 +34,9 @@ class Waypoint:
     # ... unless this much time passed since the commanded pose got there (contact legs) [s].
     timeout_s: float = 1.5
     label: str = ""
+    # A leg down around something to grasp: an expert that turns first (OraclePolicy(turn_first=True))
+    # holds its position while the hand's yaw is off the leg's.
+    turn_first: bool = False
 
 
 def moved(previous: Waypoint, position=None, *, yaw: float | None = None, gripper: float | None = None,
@@ -129,7 +132,7 @@ def grasp(scene: SceneState, color: str, lift_to: float, *, yaw: float | None = 
         yaw = grasp_yaw(scene, color)
     z = max(p[2] + 0.003, 0.022)
     above = Waypoint(tcp_pose([p[0], p[1], max(p[2] + 0.1, 0.12)], yaw), GRIPPER_OPEN, label="above block")
-    down = moved(above, [p[0], p[1], z], speed=SLOW, tolerance=0.006, label="around block")
+    down = moved(above, [p[0], p[1], z], speed=SLOW, tolerance=0.006, label="around block", turn_first=True)
     close = moved(down, gripper=GRIPPER_CLOSE, settle_s=0.5, timeout_s=0.8, label="close")
     lift = moved(close, [p[0], p[1], lift_to], speed=SLOW, tolerance=0.015, label="lift")
     return [above, down, close, lift]
@@ -160,7 +163,7 @@ def handle_grasp(scene: SceneState) -> list[Waypoint]:
     cabinet = scene.layout.cabinet
     yaw = math.atan2(cabinet[1, 0], cabinet[0, 0])  # fingers close across the bar, along the cabinet's y
     above = Waypoint(tcp_pose(h + [0.0, 0.0, 0.1], yaw), GRIPPER_OPEN, label="above handle")
-    down = moved(above, h, speed=SLOW, tolerance=0.005, label="around handle")
+    down = moved(above, h, speed=SLOW, tolerance=0.005, label="around handle", turn_first=True)
     close = moved(down, gripper=GRIPPER_CLOSE, settle_s=0.5, timeout_s=0.8, label="close on handle")
     return [above, down, close]
 

@@ -24,6 +24,9 @@ from trivla_drake.tasks.suite import get_task
 
 # Longest time one waypoint leg may take before the oracle moves on [s].
 MAX_LEG_S = 8.0
+# With `turn_first`, how far the hand may be turned off a `Waypoint.turn_first` leg's pose before the
+# expert stops moving towards it and only turns [rad] (about 6 degrees).
+TURN_FIRST_RAD = 0.1
 
 
 class OraclePolicy:
@@ -33,13 +36,18 @@ class OraclePolicy:
     uses_images = False
     privileged = True
 
-    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0):
+    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0, turn_first: bool = False):
         """`detours`: before its task, the expert visits this many places just above blocks the
-        instruction does not name (motions.detours; drawn from the reset's seed). 0: none."""
+        instruction does not name (motions.detours; drawn from the reset's seed). 0: none.
+        `turn_first`: on the legs down to a grasp (`Waypoint.turn_first`), hold the position while the
+        hand is more than TURN_FIRST_RAD off the leg's yaw, e.g. after a yaw twist
+        (eval/action_noise.py); in undisturbed episodes the hand is already turned right there, so
+        it changes nothing."""
         if isinstance(detours, bool) or not isinstance(detours, (int, np.integer)) or detours < 0:
             raise ValueError(f"detours must be an integer >= 0, got {detours!r}")
         self._space = action_space
         self._detours = int(detours)
+        self._turn_first = bool(turn_first)
         self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
@@ -116,6 +124,8 @@ class OraclePolicy:
         max_step = min(wp.speed * dt, self._space.max_translation)
         max_turn = min(wp.angular_speed * dt, self._space.max_rotation)
         action[:3] = d if distance <= max_step else d * (max_step / distance)
+        if self._turn_first and wp.turn_first and angle > TURN_FIRST_RAD:
+            action[:3] = 0.0
         action[3:6] = r if angle <= max_turn else r * (max_turn / angle)
         action[6] = wp.gripper
         return action, at_target
