@@ -241,3 +241,30 @@ for seed in 1000 1001 1002 1003 1004 1005; do
   trivla-drake evaluate --policy "$RUNS/yaw_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/grasp_yaw/yaw_seed$seed.json"
 done
+
+# 18. Optional (TWISTS=1; results/yaw_twists/, not shipped): 40 more demonstrations each of lift, stack and
+#     place in bowl whose hand's yaw is twisted 17-43 degrees off on its way down to the first grasp
+#     (collect --yaw-twists), added to a copy of the 360 clean ones; step 17's bind run bound 1500 steps
+#     more on them, its grounding check along the shipped policy's trajectories, step 17's follow run on
+#     them from it; export, grasps, evaluation seeds 1000-1005.
+if [[ "${TWISTS:-0}" == 1 ]]; then
+  TWIST_DATA=${TWIST_DATA:-$DATA-yaw}
+  [[ -d "$TWIST_DATA" ]] || cp -r "$DATA" "$TWIST_DATA"
+  trivla-drake collect --out "$TWIST_DATA" --episodes-per-task 70 --tasks lift_block,stack_block,place_in_bowl \
+      --yaw-twists --workers 2
+  mkdir -p results/yaw_twists
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TWIST_DATA" --out "$RUNS/grounded_bind_twist" \
+      --init "$RUNS/grounded_bind_yaw/final" --grounding-phase bind --keep-grounding --subgoal-yaw --lr 1e-3 \
+      --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+  trivla-drake probe --checkpoint "$RUNS/grounded_bind_twist/final" --grounding-scenes 20 --drive models/trivla_cpu \
+      --threads 2 > results/yaw_twists/grounding_check_bind_twist_along_policy.md
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TWIST_DATA" --out "$RUNS/grounded_follow_twist" \
+      --init "$RUNS/grounded_bind_twist/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
+      --subgoal-offset --subgoal-yaw
+  trivla-drake export "$RUNS/grounded_follow_twist/final" --out "$RUNS/twist_export" --drop-unused-llm-layers
+  trivla-drake probe --checkpoint "$RUNS/twist_export" --grasp-episodes 6 > results/yaw_twists/grasps_twist_export.md
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/twist_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/yaw_twists/twist_seed$seed.json"
+  done
+fi
