@@ -31,8 +31,8 @@ from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
     DETOURS_KEY,
     EPISODE_TASK_KEY,
-    YAW_TWISTS_KEY,
     PERTURBED_FRAMES_KEY,
+    YAW_TWISTS_KEY,
     LeRobotWriter,
     image_stats,
     vector_feature,
@@ -127,9 +127,9 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     from trivla_drake.tasks.oracle import OraclePolicy
 
     seed = derive_seed(config.seed, task, attempt)
+    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists)
     result = run_episode(
-        task, seed, OraclePolicy(detours=config.detours, turn_first=config.yaw_twists), image_size=config.image_size, keep_trajectory=True,
-        action_noise=config.disturbance(),
+        task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=config.disturbance(),
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
     if not result.success:

@@ -36,7 +36,8 @@ class OraclePolicy:
     uses_images = False
     privileged = True
 
-    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0, turn_first: bool = False):
+    def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0,
+                 turn_first: bool = False):
         """`detours`: before its task, the expert visits this many places just above blocks the
         instruction does not name (motions.detours; drawn from the reset's seed). 0: none.
         `turn_first`: on the legs down to a grasp (`Waypoint.turn_first`), hold the position while the
