@@ -123,13 +123,12 @@ class YawTwistState:
         angle = float(rng.uniform(*settings.angle))
         self.steps = int(np.ceil(angle / settings.rate))
         self.step_rate = float(rng.choice([-1.0, 1.0])) * angle / self.steps
-        self.remaining = -1  # -1: not started; then steps left; 0: done
-        self.closed = False
+        self.remaining = -1  # -1: not started; then the steps left; 0: done (or never, past the first close)
 
     def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
-        if self.remaining == -1 and not self.closed:
+        if self.remaining == -1:
             if action[6] <= 0.0:
-                self.closed = True  # past the first grasp: this episode is not twisted
+                self.remaining = 0  # past the first grasp: this episode is not twisted
             else:
                 if observation is None or "ee_target" not in observation:
                     raise ValueError("YawTwists needs observation['ee_target'] (the commanded tcp pose)")

@@ -222,13 +222,9 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         "trivla/attempt": attempt,
                         "trivla/seed": result["seed"],
                         "trivla/params": list(result["params"]),
-                        **(
-                            {ACTION_NOISE_KEY: config.action_noise, PERTURBED_FRAMES_KEY: result["perturbed_frames"]}
-                            if config.action_noise
-                            else {}
-                        ),
-                        **({YAW_TWISTS_KEY: True, PERTURBED_FRAMES_KEY: result["perturbed_frames"]}
-                           if config.yaw_twists else {}),
+                        **({PERTURBED_FRAMES_KEY: result["perturbed_frames"]} if config.disturbance() else {}),
+                        **({ACTION_NOISE_KEY: config.action_noise} if config.action_noise else {}),
+                        **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                     },
                 )
