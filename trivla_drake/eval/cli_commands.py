@@ -47,6 +47,7 @@ def run_collect(args: argparse.Namespace) -> int:
             action_noise=args.action_noise,
             detours=args.detours,
             yaw_twists=args.yaw_twists,
+            missed_grasps=args.missed_grasps,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -129,6 +130,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
         help="twist the hand's yaw 17-43 degrees once on its way down to the first grasp; the oracle turns "
              "back before going on down (recovery data for the grasp's yaw; the recorded actions stay the "
              "oracle's). Episodes started from now on get this setting.",
+    )
+    parser.add_argument(
+        "--missed-grasps", action="store_true",
+        help="make the first grasp miss (the hand closes 2-3.5 cm off where the oracle was heading, turned "
+             "up to 43 degrees); the oracle opens, rises and grasps again (recovery data for missed grasps; "
+             "the recorded actions stay the oracle's). Episodes started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")

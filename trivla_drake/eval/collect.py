@@ -11,6 +11,8 @@ the recorded actions stay the oracle's and each episode's metadata lists its dis
 With `yaw_twists` the hand's yaw is twisted once on its way down to the first grasp and the oracle
 turns back before going on down (eval/action_noise.py, `YawTwists`); disturbed frames are listed as
 with `action_noise`.
+With `missed_grasps` the first grasp is made to miss (the hand closes off the block) and the oracle
+opens, rises and grasps again (eval/missed_grasps.py); disturbed frames are listed as with `action_noise`.
 With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
 name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
@@ -33,12 +35,14 @@ from trivla_drake.data.lerobot import (
     EPISODE_TASK_KEY,
     PERTURBED_FRAMES_KEY,
     YAW_TWISTS_KEY,
+    MISSED_GRASPS_KEY,
     LeRobotWriter,
     image_stats,
     vector_feature,
     video_feature,
 )
 from trivla_drake.eval.action_noise import PerturbationBursts, YawTwists
+from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
 
@@ -81,6 +85,9 @@ class CollectConfig:
     # Twist the hand's yaw once on its way down to the first grasp; the oracle turns back before it
     # goes on down (eval/action_noise.py, YawTwists). Recorded per episode (YAW_TWISTS_KEY).
     yaw_twists: bool = False
+    # Make the first grasp miss (closing the hand off the block); the oracle opens, rises and grasps
+    # again (eval/missed_grasps.py). Recorded per episode (MISSED_GRASPS_KEY).
+    missed_grasps: bool = False
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -92,18 +99,23 @@ class CollectConfig:
         if not self.tasks:
             raise ValueError("--tasks is empty")
         self.disturbance()  # validates --action-noise
-        if self.yaw_twists and self.action_noise:
-            raise ValueError("--yaw-twists and --action-noise cannot be combined: collect them into the same "
-                             "dataset in two runs")
+        chosen = [name for name, on in (("--action-noise", bool(self.action_noise)), ("--yaw-twists", self.yaw_twists),
+                                        ("--missed-grasps", self.missed_grasps)) if on]
+        if len(chosen) > 1:
+            raise ValueError(f"{' and '.join(chosen)} cannot be combined: collect them into the same dataset in "
+                             "separate runs")
         if isinstance(self.detours, bool) or not isinstance(self.detours, int) or self.detours < 0:
             raise ValueError(f"--detours must be an integer >= 0, got {self.detours!r}")
         for name in self.tasks:
             get_task(name)
 
-    def disturbance(self) -> PerturbationBursts | YawTwists | None:
-        """The yaw twists of `yaw_twists`, or the perturbation bursts of `action_noise` (None when 0)."""
+    def disturbance(self) -> PerturbationBursts | YawTwists | MissedGrasps | None:
+        """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, or the perturbation
+        bursts of `action_noise` (None when 0)."""
         if self.yaw_twists:
             return YawTwists()
+        if self.missed_grasps:
+            return MissedGrasps()
         return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
@@ -127,7 +139,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     from trivla_drake.tasks.oracle import OraclePolicy
 
     seed = derive_seed(config.seed, task, attempt)
-    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists)
+    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps)
     result = run_episode(
         task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=config.disturbance(),
     )
@@ -225,6 +237,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({PERTURBED_FRAMES_KEY: result["perturbed_frames"]} if config.disturbance() else {}),
                         **({ACTION_NOISE_KEY: config.action_noise} if config.action_noise else {}),
                         **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
+                        **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                     },
                 )

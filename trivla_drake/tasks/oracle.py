@@ -37,18 +37,23 @@ class OraclePolicy:
     privileged = True
 
     def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0,
-                 turn_first: bool = False):
+                 turn_first: bool = False, regrasp: bool = False):
         """`detours`: before its task, the expert visits this many places just above blocks the
         instruction does not name (motions.detours; drawn from the reset's seed). 0: none.
         `turn_first`: on the legs down to a grasp (`Waypoint.turn_first`), hold the position while the
         hand is more than TURN_FIRST_RAD off the leg's yaw, e.g. after a yaw twist
         (eval/action_noise.py); in undisturbed episodes the hand is already turned right there, so
-        it changes nothing."""
+        it changes nothing.
+        `regrasp`: when the hand is commanded closed although the expert's current leg has it open
+        (a missed grasp forced on it, eval/missed_grasps.py), plan again from the scene as it is:
+        open, rise, then the task's plan (which grasps again). The expert never does that itself,
+        so without a disturbance it changes nothing."""
         if isinstance(detours, bool) or not isinstance(detours, (int, np.integer)) or detours < 0:
             raise ValueError(f"detours must be an integer >= 0, got {detours!r}")
         self._space = action_space
         self._detours = int(detours)
         self._turn_first = bool(turn_first)
+        self._regrasp = bool(regrasp)
         self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
@@ -76,11 +81,15 @@ class OraclePolicy:
             raise ValueError("OraclePolicy needs observation['privileged'] (scene and task ground truth)")
         scene, instance = privileged["scene"], privileged["task"]
         X_cmd = np.asarray(observation["ee_target"])
+        closed = float(observation.get("gripper_command", GRIPPER_OPEN)) <= 0.0
+        task = get_task(instance.task)
         if self._plan is None:
-            closed = float(observation.get("gripper_command", GRIPPER_OPEN)) <= 0.0
-            task = get_task(instance.task)
             self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance) \
                 + task.plan(instance.params, scene)
+        elif self._regrasp and closed and self._gripper > 0.0:
+            # Closed by someone else: whatever it grasped or not, open, rise and go on from the scene as it is.
+            self._plan = motions.retreat(scene, closed) + task.plan(instance.params, scene)
+            self._index, self._waited, self._leg_steps = 0, 0, 0
         dt = self._space.dt
         while self._index < len(self._plan):
             wp = self._plan[self._index]
