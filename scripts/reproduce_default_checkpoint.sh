@@ -268,3 +268,26 @@ if [[ "${TWISTS:-0}" == 1 ]]; then
         > "results/yaw_twists/twist_seed$seed.json"
   done
 fi
+
+# 19. Optional (MISSES=1; results/missed_grasps/): 40 more demonstrations each of lift, stack and place
+#     in bowl and 20 each of rotate left / right and unstack whose first grasp is made to miss (collect
+#     --missed-grasps: the oracle opens, rises and grasps again), added to a copy of the 360 clean ones;
+#     step 15's follow run on them from step 15's bind run; export, grasps, evaluation seeds 1000-1005.
+if [[ "${MISSES:-0}" == 1 ]]; then
+  MISS_DATA=${MISS_DATA:-$DATA-miss}
+  [[ -d "$MISS_DATA" ]] || cp -r "$DATA" "$MISS_DATA"
+  trivla-drake collect --out "$MISS_DATA" --episodes-per-task 70 --tasks lift_block,stack_block,place_in_bowl \
+      --missed-grasps --workers 2
+  trivla-drake collect --out "$MISS_DATA" --episodes-per-task 50 \
+      --tasks rotate_block_left,rotate_block_right,unstack_block --missed-grasps --workers 2
+  mkdir -p results/missed_grasps
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MISS_DATA" --out "$RUNS/grounded_follow_miss" \
+      --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
+      --subgoal-offset
+  trivla-drake export "$RUNS/grounded_follow_miss/final" --out "$RUNS/miss_export" --drop-unused-llm-layers
+  trivla-drake probe --checkpoint "$RUNS/miss_export" --grasp-episodes 6 > results/missed_grasps/grasps_miss_export.md
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/miss_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/missed_grasps/miss_seed$seed.json"
+  done
+fi

@@ -24,15 +24,17 @@ def test_the_oracle_closes_on_the_named_block_and_lifts_it():
     rows = grasp_report(OraclePolicy(), episodes_per_task=1, tasks=("lift_block",))
     (row,) = rows
     assert row.success and row.close_step is not None and row.close_step > 0
+    assert row.closes == 1  # one grasp, held
     assert row.nearest_block_named and row.close_to_block_m < 0.015
     assert 0.01 < row.close_height_m < 0.05
     assert abs(row.close_yaw_error_deg) < 5.0  # the expert turns the hand to the block's faces
     assert row.first_subgoal_to_block_m is None and row.close_to_subgoal_m is None  # no grounding
     summary = grasp_summary(rows)
     assert (summary["episodes"], summary["successes"], summary["closed_within_1_5_cm"]) == (1, 1, 1)
+    assert (summary["closed_again"], summary["successes_after_closing_again"]) == (0, 0)
     assert summary["closed_within_15_deg"] == 1 and summary["median_abs_close_yaw_error_deg"] < 5.0
     text = format_grasp_report(rows)
-    assert "| lift_block | 1000 | yes |" in text and "1/1 succeed" in text
+    assert "| lift_block | 1000 | yes |" in text and "1/1 succeed" in text and "(again after opening in 0" in text
     assert "the hand's yaw within 15 degrees of the block's faces in 1" in text
 
 
@@ -71,3 +73,11 @@ def test_summary_of_episodes_that_never_close():
     assert summary["median_first_subgoal_to_block_cm"] == 4.0
     assert "| never |" in format_grasp_report([row])
     json.dumps(summary)
+
+
+def test_closes_count_every_close_from_open():
+    from trivla_drake.eval.grasp_report import count_closes
+
+    assert count_closes(np.array([1.0, 1.0, 1.0])) == 0
+    assert count_closes(np.array([-1.0, -1.0, 1.0])) == 1  # closed from the start
+    assert count_closes(np.array([1.0, -1.0, -1.0, 1.0, 1.0, -0.5, 1.0, 0.0])) == 3

@@ -28,6 +28,7 @@ class GraspRow:
     instruction: str
     success: bool
     close_step: int | None = None  # the first control step commanding the gripper closed
+    closes: int = 0  # how often the gripper was commanded closed from open (a retried grasp counts again)
     close_to_block_m: float | None = None  # tool-centre point to the named block's centre when it closes
     nearest_block_named: bool | None = None  # the named block is the nearest one when it closes
     close_height_m: float | None = None  # the tool-centre point's height when it closes
@@ -113,6 +114,7 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
             actions = np.asarray(result.trajectory.actions).reshape(-1, 7)
             closed = np.flatnonzero(actions[:, 6] <= 0.0)
             row = GraspRow(task, episode_seed, result.instruction, bool(result.success))
+            row.closes = count_closes(actions[:, 6])
             first_subgoal = recorder.chunks[0][1] if recorder.chunks else None
             if first_subgoal is not None:
                 row.first_subgoal_to_block_m = _xy(first_subgoal, named)
@@ -134,6 +136,12 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
     return rows
 
 
+def count_closes(gripper: np.ndarray) -> int:
+    """How often a gripper command sequence (> 0 open, <= 0 closed; the hand starts open) closes."""
+    closed = np.asarray(gripper) <= 0.0
+    return int(closed[:1].sum() + np.sum(closed[1:] & ~closed[:-1]))
+
+
 def grasp_summary(rows: list[GraspRow]) -> dict:
     """Counts and medians over the episodes (distances in cm; None where nothing was measured)."""
     closed = [r for r in rows if r.close_step is not None]
@@ -146,6 +154,8 @@ def grasp_summary(rows: list[GraspRow]) -> dict:
         "episodes": len(rows),
         "successes": sum(r.success for r in rows),
         "closed": len(closed),
+        "closed_again": sum(r.closes > 1 for r in rows),
+        "successes_after_closing_again": sum(r.closes > 1 and r.success for r in rows),
         "nearest_block_named": sum(bool(r.nearest_block_named) for r in closed),
         "closed_within_1_5_cm": sum(r.close_to_block_m < 0.015 for r in closed),
         "closed_within_3_cm": sum(r.close_to_block_m < 0.03 for r in closed),
@@ -163,16 +173,16 @@ def grasp_summary(rows: list[GraspRow]) -> dict:
 def format_grasp_report(rows: list[GraspRow]) -> str:
     """A Markdown table of the episodes and a summary line."""
     lines = [
-        "| task | seed | success | closes at step | to named block [cm] | named block nearest | height [cm] "
+        "| task | seed | success | closes at step | closes | to named block [cm] | named block nearest | height [cm] "
         "| yaw to the block's faces [deg] | sub-goal to block, first / at close [cm] | to sub-goal [cm] |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         def cm(value):
             return "-" if value is None else f"{100 * value:.1f}"
         nearest = "-" if r.nearest_block_named is None else ("yes" if r.nearest_block_named else "no")
         lines.append(f"| {r.task} | {r.seed} | {'yes' if r.success else 'no'} | "
-                     f"{'never' if r.close_step is None else r.close_step} | {cm(r.close_to_block_m)} | {nearest} | "
+                     f"{'never' if r.close_step is None else r.close_step} | {r.closes} | {cm(r.close_to_block_m)} | {nearest} | "
                      f"{cm(r.close_height_m)} | {'-' if r.close_yaw_error_deg is None else f'{r.close_yaw_error_deg:+.0f}'} | "
                      f"{cm(r.first_subgoal_to_block_m)} / {cm(r.close_subgoal_to_block_m)} | "
                      f"{cm(r.close_to_subgoal_m)} |")
@@ -183,7 +193,9 @@ def format_grasp_report(rows: list[GraspRow]) -> str:
 
     lines.append("")
     lines.append(
-        f"{s['successes']}/{s['episodes']} succeed; the gripper closes in {s['closed']}, nearest the named block in "
+        f"{s['successes']}/{s['episodes']} succeed; the gripper closes in {s['closed']} (again after opening in "
+        f"{s['closed_again']}, of which {s['successes_after_closing_again']} succeed); at its first close it is "
+        f"nearest the named block in "
         f"{s['nearest_block_named']}, within 1.5 cm of it in {s['closed_within_1_5_cm']} and within 3 cm in "
         f"{s['closed_within_3_cm']}; medians: {median('median_close_to_block_cm')} cm from the block "
         f"at {median('median_close_height_cm')} cm height, the hand's yaw within 15 degrees of the block's faces in "
