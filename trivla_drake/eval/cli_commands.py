@@ -133,8 +133,8 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--missed-grasps", action="store_true",
-        help="make the first grasp miss (the hand closes 2-3.5 cm off where the oracle was heading, turned "
-             "up to 43 degrees); the oracle opens, rises and grasps again (recovery data for missed grasps; "
+        help="make the first grasp miss (the hand closes 3-4.5 cm beside where the oracle was heading, across "
+             "its fingers, turned up to 43 degrees); the oracle opens, rises and grasps again (recovery data for missed grasps; "
              "the recorded actions stay the oracle's). Episodes started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

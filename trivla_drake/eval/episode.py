@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from trivla_drake.eval.action_noise import BurstState, PerturbationBursts, YawTwists, YawTwistState
-from trivla_drake.eval.missed_grasps import MissedGrasps, MissedGraspState
 from trivla_drake.eval.env import TabletopEnv
+from trivla_drake.eval.missed_grasps import MissedGrasps, MissedGraspState
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trivla_drake.systems.action_executor import ACTION_DIM, GRIPPER_CLOSE, GRIPPER_OPEN
+from trivla_drake.systems.action_executor import ACTION_DIM, DEFAULT_ACTION_SPACE, GRIPPER_CLOSE, GRIPPER_OPEN
 
 
 @dataclass(frozen=True)
@@ -108,7 +108,8 @@ class MissedGraspState:
             distance = float(np.linalg.norm(step))
             applied[:3] = step if distance <= self.settings.speed else step * (self.settings.speed / distance)
             steps_left = max(distance / self.settings.speed, 1.0)
-            applied[5] = (self.turn - self.turned) / steps_left
+            limit = DEFAULT_ACTION_SPACE.max_rotation  # what the executor applies at most
+            applied[5] = float(np.clip((self.turn - self.turned) / steps_left, -limit, limit))
             self.turned += applied[5]
             applied[6] = GRIPPER_OPEN
             if distance <= self.settings.speed:
