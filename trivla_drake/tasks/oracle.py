@@ -82,13 +82,12 @@ class OraclePolicy:
         scene, instance = privileged["scene"], privileged["task"]
         X_cmd = np.asarray(observation["ee_target"])
         closed = float(observation.get("gripper_command", GRIPPER_OPEN)) <= 0.0
-        task = get_task(instance.task)
         if self._plan is None:
             self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance) \
-                + task.plan(instance.params, scene)
+                + get_task(instance.task).plan(instance.params, scene)
         elif self._regrasp and closed and self._gripper > 0.0:
             # Closed by someone else: whatever it grasped or not, open, rise and go on from the scene as it is.
-            self._plan = motions.retreat(scene, closed) + task.plan(instance.params, scene)
+            self._plan = motions.retreat(scene, closed) + get_task(instance.task).plan(instance.params, scene)
             self._index, self._waited, self._leg_steps = 0, 0, 0
         dt = self._space.dt
         while self._index < len(self._plan):
