@@ -291,3 +291,27 @@ if [[ "${MISSES:-0}" == 1 ]]; then
         > "results/missed_grasps/miss_seed$seed.json"
   done
 fi
+
+# 20. Optional (DRIFTS=1; results/approach_drifts/): 40 more demonstrations each of lift, stack and place
+#     in bowl and 20 each of rotate left / right and unstack whose hand is pushed 1.2-3.5 cm sideways and
+#     turned on its way down to the first grasp (collect --approach-drifts: the oracle stops going down and
+#     centres it again first), added to a copy of the 360 clean ones; step 15's follow run on them from
+#     step 15's bind run; export, grasps, evaluation seeds 1000-1005.
+if [[ "${DRIFTS:-0}" == 1 ]]; then
+  DRIFT_DATA=${DRIFT_DATA:-$DATA-drift}
+  [[ -d "$DRIFT_DATA" ]] || cp -r "$DATA" "$DRIFT_DATA"
+  trivla-drake collect --out "$DRIFT_DATA" --episodes-per-task 70 --tasks lift_block,stack_block,place_in_bowl \
+      --approach-drifts --workers 2
+  trivla-drake collect --out "$DRIFT_DATA" --episodes-per-task 50 \
+      --tasks rotate_block_left,rotate_block_right,unstack_block --approach-drifts --workers 2
+  mkdir -p results/approach_drifts
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DRIFT_DATA" --out "$RUNS/grounded_follow_drift" \
+      --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
+      --subgoal-offset
+  trivla-drake export "$RUNS/grounded_follow_drift/final" --out "$RUNS/drift_export" --drop-unused-llm-layers
+  trivla-drake probe --checkpoint "$RUNS/drift_export" --grasp-episodes 6 > results/approach_drifts/grasps_drift_export.md
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/drift_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/approach_drifts/drift_seed$seed.json"
+  done
+fi

@@ -87,6 +87,24 @@ class BurstState:
         return applied, True
 
 
+# What `descent_below` tells a once-per-episode disturbance.
+WAITING, STARTED, PAST = "waiting", "started", "past"
+
+
+def descent_below(action: np.ndarray, observation: dict | None, start_z: float, who: str) -> str:
+    """Whether the expert's `action` (7,) starts the one disturbance of an episode that waits for the open
+    hand to come down to its first grasp: PAST once the gripper is commanded closed (the first grasp
+    began), STARTED when the action goes down while observation['ee_target'] (4x4, the commanded tcp
+    pose) is below `start_z` [m], else WAITING. ValueError naming `who` without the commanded pose."""
+    if action[6] <= 0.0:
+        return PAST
+    if observation is None or "ee_target" not in observation:
+        raise ValueError(f"{who} needs observation['ee_target'] (the commanded tcp pose)")
+    if action[2] < 0.0 and float(np.asarray(observation["ee_target"])[2, 3]) < start_z:
+        return STARTED
+    return WAITING
+
+
 @dataclass(frozen=True)
 class YawTwists:
     """Settings of the yaw twist (see the module docstring)."""
@@ -127,13 +145,9 @@ class YawTwistState:
 
     def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
         if self.remaining == -1:
-            if action[6] <= 0.0:
-                self.remaining = 0  # past the first grasp: this episode is not twisted
-            else:
-                if observation is None or "ee_target" not in observation:
-                    raise ValueError("YawTwists needs observation['ee_target'] (the commanded tcp pose)")
-                if action[2] < 0.0 and float(np.asarray(observation["ee_target"])[2, 3]) < self.start_z:
-                    self.remaining = self.steps
+            when = descent_below(action, observation, self.start_z, "YawTwists")
+            if when != WAITING:
+                self.remaining = self.steps if when == STARTED else 0  # PAST: this episode is not twisted
         if self.remaining <= 0:
             return action, False
         self.remaining -= 1

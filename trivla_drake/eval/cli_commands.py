@@ -48,6 +48,7 @@ def run_collect(args: argparse.Namespace) -> int:
             detours=args.detours,
             yaw_twists=args.yaw_twists,
             missed_grasps=args.missed_grasps,
+            approach_drifts=args.approach_drifts,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -136,6 +137,13 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
         help="make the first grasp miss (the hand closes 3-4.5 cm beside where the oracle was heading, across "
              "its fingers, turned up to 43 degrees); the oracle opens, rises and grasps again (recovery data for missed grasps; "
              "the recorded actions stay the oracle's). Episodes started from now on get this setting.",
+    )
+    parser.add_argument(
+        "--approach-drifts", action="store_true",
+        help="push the hand 1.2-3.5 cm sideways and turn it up to 34 degrees once on its way down to the first "
+             "grasp; the oracle stops going down and centres it again first (recovery data for where the wrist "
+             "view shows the block off-centre; the recorded actions stay the oracle's). Episodes started from "
+             "now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")

@@ -13,6 +13,9 @@ turns back before going on down (eval/action_noise.py, `YawTwists`); disturbed f
 with `action_noise`.
 With `missed_grasps` the first grasp is made to miss (the hand closes off the block) and the oracle
 opens, rises and grasps again (eval/missed_grasps.py); disturbed frames are listed as with `action_noise`.
+With `approach_drifts` the hand is pushed sideways and turned once on its way down to the first grasp
+and the oracle centres it again before going on down (eval/approach_drifts.py); disturbed frames are
+listed as with `action_noise`.
 With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
 name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
@@ -31,6 +34,7 @@ import numpy as np
 
 from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
+    APPROACH_DRIFTS_KEY,
     DETOURS_KEY,
     EPISODE_TASK_KEY,
     MISSED_GRASPS_KEY,
@@ -42,6 +46,7 @@ from trivla_drake.data.lerobot import (
     video_feature,
 )
 from trivla_drake.eval.action_noise import PerturbationBursts, YawTwists
+from trivla_drake.eval.approach_drifts import ApproachDrifts
 from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
@@ -88,6 +93,9 @@ class CollectConfig:
     # Make the first grasp miss (closing the hand off the block); the oracle opens, rises and grasps
     # again (eval/missed_grasps.py). Recorded per episode (MISSED_GRASPS_KEY).
     missed_grasps: bool = False
+    # Push the hand sideways and turn it once on its way down to the first grasp; the oracle centres it
+    # again before it goes on down (eval/approach_drifts.py). Recorded per episode (APPROACH_DRIFTS_KEY).
+    approach_drifts: bool = False
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -100,7 +108,8 @@ class CollectConfig:
             raise ValueError("--tasks is empty")
         self.disturbance()  # validates --action-noise
         chosen = [name for name, on in (("--action-noise", bool(self.action_noise)), ("--yaw-twists", self.yaw_twists),
-                                        ("--missed-grasps", self.missed_grasps)) if on]
+                                        ("--missed-grasps", self.missed_grasps),
+                                        ("--approach-drifts", self.approach_drifts)) if on]
         if len(chosen) > 1:
             raise ValueError(f"{' and '.join(chosen)} cannot be combined: collect them into the same dataset in "
                              "separate runs")
@@ -109,13 +118,15 @@ class CollectConfig:
         for name in self.tasks:
             get_task(name)
 
-    def disturbance(self) -> PerturbationBursts | YawTwists | MissedGrasps | None:
-        """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, or the perturbation
-        bursts of `action_noise` (None when 0)."""
+    def disturbance(self) -> PerturbationBursts | YawTwists | MissedGrasps | ApproachDrifts | None:
+        """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, the drifts of
+        `approach_drifts`, or the perturbation bursts of `action_noise` (None when 0)."""
         if self.yaw_twists:
             return YawTwists()
         if self.missed_grasps:
             return MissedGrasps()
+        if self.approach_drifts:
+            return ApproachDrifts()
         return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
@@ -139,7 +150,8 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     from trivla_drake.tasks.oracle import OraclePolicy
 
     seed = derive_seed(config.seed, task, attempt)
-    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps)
+    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps,
+                          align_first=config.approach_drifts)
     result = run_episode(
         task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=config.disturbance(),
     )
@@ -238,6 +250,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({ACTION_NOISE_KEY: config.action_noise} if config.action_noise else {}),
                         **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
                         **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
+                        **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                     },
                 )

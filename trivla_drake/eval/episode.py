@@ -18,6 +18,7 @@ import numpy as np
 
 from trivla_drake.eval.action_noise import BurstState, PerturbationBursts, YawTwists, YawTwistState
 from trivla_drake.eval.env import TabletopEnv
+from trivla_drake.eval.approach_drifts import ApproachDrifts, ApproachDriftState
 from trivla_drake.eval.missed_grasps import MissedGrasps, MissedGraspState
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
@@ -153,7 +154,7 @@ def _run_subtask(
     seed: int,
     max_steps: int,
     recorder: _Recorder,
-    disturbance: BurstState | YawTwistState | MissedGraspState | None = None,
+    disturbance: BurstState | YawTwistState | MissedGraspState | ApproachDriftState | None = None,
 ) -> tuple[EpisodeResult, dict]:
     """Drive `policy` on one task from the env's current state until success or `max_steps`;
     `disturbance` perturbs the applied actions (the recorded ones stay the policy's)."""
@@ -199,13 +200,13 @@ def run_episode(
     keep_trajectory: bool = False,
     max_steps: int | None = None,
     scenario: Scenario | None = None,
-    action_noise: PerturbationBursts | YawTwists | MissedGrasps | None = None,
+    action_noise: PerturbationBursts | YawTwists | MissedGrasps | ApproachDrifts | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
 
     `action_noise` disturbs the applied actions in bursts, twists the hand's yaw once on its way
     down to the first grasp (DART data collection, eval/action_noise.py), or makes the first grasp
-    miss (eval/missed_grasps.py); its random draws
+    miss (eval/missed_grasps.py), or pushes the hand off on its way down (eval/approach_drifts.py); its random draws
     come from their own stream derived from `seed`, so the scene is the same with and without).
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it

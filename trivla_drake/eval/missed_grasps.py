@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trivla_drake.eval.action_noise import PAST, STARTED, descent_below
 from trivla_drake.systems.action_executor import ACTION_DIM, DEFAULT_ACTION_SPACE, GRIPPER_CLOSE, GRIPPER_OPEN
 
 
@@ -93,11 +94,12 @@ class MissedGraspState:
 
     def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
         if self.phase == self.WAITING:
-            if action[6] <= 0.0:
+            when = descent_below(action, observation, self.start_z, "MissedGrasps")
+            if when == PAST:
                 self.phase = self.DONE  # past the first grasp: this episode's grasp is not missed
                 return action, False
-            X = self._commanded(observation)
-            if action[2] < 0.0 and X[2, 3] < self.start_z:
+            if when == STARTED:
+                X = self._commanded(observation)
                 self.phase = self.DESCENDING
                 offset = X[:2, :2] @ self.offset_in_hand  # the hand's x and y axes, pointing down, are horizontal
                 self.target = np.array([X[0, 3] + offset[0], X[1, 3] + offset[1], self.settings.close_z])

@@ -35,7 +35,8 @@ class Waypoint:
     timeout_s: float = 1.5
     label: str = ""
     # A leg down around something to grasp: an expert that turns first (OraclePolicy(turn_first=True))
-    # holds its position while the hand's yaw is off the leg's.
+    # holds its position while the hand's yaw is off the leg's; one that aligns first
+    # (OraclePolicy(align_first=True)) stops going down while the hand is sideways or turned off it.
     turn_first: bool = False
 
 

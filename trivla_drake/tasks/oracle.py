@@ -27,6 +27,9 @@ MAX_LEG_S = 8.0
 # With `turn_first`, how far the hand may be turned off a `Waypoint.turn_first` leg's pose before the
 # expert stops moving towards it and only turns [rad] (about 6 degrees).
 TURN_FIRST_RAD = 0.1
+# With `align_first`, how far the commanded tcp may be sideways (in x-y) off a `Waypoint.turn_first` leg's
+# target before the expert stops going down and only moves across and turns [m].
+ALIGN_FIRST_M = 0.004
 
 
 class OraclePolicy:
@@ -37,13 +40,17 @@ class OraclePolicy:
     privileged = True
 
     def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0,
-                 turn_first: bool = False, regrasp: bool = False):
+                 turn_first: bool = False, regrasp: bool = False, align_first: bool = False):
         """`detours`: before its task, the expert visits this many places just above blocks the
         instruction does not name (motions.detours; drawn from the reset's seed). 0: none.
         `turn_first`: on the legs down to a grasp (`Waypoint.turn_first`), hold the position while the
         hand is more than TURN_FIRST_RAD off the leg's yaw, e.g. after a yaw twist
         (eval/action_noise.py); in undisturbed episodes the hand is already turned right there, so
         it changes nothing.
+        `align_first`: on those legs, stop going down while the commanded tcp is more than ALIGN_FIRST_M
+        sideways or TURN_FIRST_RAD turned off the leg's target, and move across and turn until it is not,
+        e.g. after an approach drift (eval/approach_drifts.py); undisturbed, the hand comes down
+        straight above its target, so it changes nothing.
         `regrasp`: when the hand is commanded closed although the expert's current leg has it open
         (a missed grasp forced on it, eval/missed_grasps.py), plan again from the scene as it is:
         open, rise, then the task's plan (which grasps again). The expert never does that itself,
@@ -54,6 +61,7 @@ class OraclePolicy:
         self._detours = int(detours)
         self._turn_first = bool(turn_first)
         self._regrasp = bool(regrasp)
+        self._align_first = bool(align_first)
         self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
@@ -135,6 +143,11 @@ class OraclePolicy:
         action[:3] = d if distance <= max_step else d * (max_step / distance)
         if self._turn_first and wp.turn_first and angle > TURN_FIRST_RAD:
             action[:3] = 0.0
+        elif self._align_first and wp.turn_first and d[2] < 0.0:
+            across = float(np.linalg.norm(d[:2]))
+            if across > ALIGN_FIRST_M or angle > TURN_FIRST_RAD:  # across and turn only, at this height
+                action[:3] = 0.0
+                action[:2] = d[:2] if across <= max_step else d[:2] * (max_step / across)
         action[3:6] = r if angle <= max_turn else r * (max_turn / angle)
         action[6] = wp.gripper
         return action, at_target
