@@ -314,4 +314,13 @@ if [[ "${DRIFTS:-0}" == 1 ]]; then
     trivla-drake evaluate --policy "$RUNS/drift_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
         > "results/approach_drifts/drift_seed$seed.json"
   done
+  # Two diagnostics of the shipped model: sampling from the noise mean, and the demonstrations' own scenes
+  # (collect's base seed 0: episodes 0-2 of each task are its first three demonstrations' scenes).
+  mkdir -p results/approach_drifts/diagnostics
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --noise-scale 0 --workers 2 \
+        --no-progress --json > "results/approach_drifts/diagnostics/n0_seed$seed.json"
+  done
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 3 --seed 0 --workers 2 --no-progress --json \
+      > results/approach_drifts/diagnostics/shipped_training_scenes_seed0.json
 fi
