@@ -11,10 +11,9 @@ import pytest
 
 from trivla_drake.data.lerobot import APPROACH_DRIFTS_KEY, PERTURBED_FRAMES_KEY, LeRobotReader
 from trivla_drake.data.samples import TrainingSamples
-from trivla_drake.data.subgoals import quaternion_yaw
 from trivla_drake.eval.approach_drifts import ApproachDrifts
 from trivla_drake.systems.action_executor import apply_action
-from trivla_drake.tasks.scene import tcp_pose
+from trivla_drake.tasks.scene import hand_yaw, tcp_pose
 
 DOWN = np.array([0.0, 0.0, -0.003, 0.0, 0.0, 0.0, 1.0])
 
@@ -36,15 +35,7 @@ def test_the_drift_waits_for_the_descent_then_moves_across_and_turns_at_its_heig
     assert flags == [True] * drift.steps + [False] * (60 - drift.steps)  # one drift per episode
     assert X[2, 3] == pytest.approx(start[2, 3], abs=1e-9)  # at its height
     assert np.linalg.norm(X[:2, 3] - start[:2, 3]) == pytest.approx(0.03, abs=1e-6)
-    turned = quaternion_yaw(_quaternion(X)) - quaternion_yaw(_quaternion(start))
-    assert abs(turned) == pytest.approx(0.5, abs=1e-6)
-
-
-def _quaternion(X: np.ndarray) -> np.ndarray:
-    from pydrake.math import RotationMatrix
-
-    q = RotationMatrix(X[:3, :3]).ToQuaternion()
-    return np.array([q.w(), q.x(), q.y(), q.z()])
+    assert abs(hand_yaw(X) - hand_yaw(start)) == pytest.approx(0.5, abs=1e-6)
 
 
 def test_no_drift_after_the_gripper_first_closes():

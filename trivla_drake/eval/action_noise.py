@@ -26,8 +26,22 @@ frame's action chunk (see `trivla_drake.data.samples`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
+
+
+class DisturbanceState(Protocol):
+    """One episode's running disturbance: `apply(action, observation)` -> (applied action, disturbed?)."""
+
+    def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]: ...
+
+
+class Disturbance(Protocol):
+    """Settings of a disturbance of the applied actions (bursts, yaw twists, missed grasps, approach
+    drifts); `start(rng)` begins one episode's."""
+
+    def start(self, rng: np.random.Generator) -> DisturbanceState: ...
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ from trivla_drake.data.lerobot import (
     vector_feature,
     video_feature,
 )
-from trivla_drake.eval.action_noise import PerturbationBursts, YawTwists
+from trivla_drake.eval.action_noise import Disturbance, PerturbationBursts, YawTwists
 from trivla_drake.eval.approach_drifts import ApproachDrifts
 from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
@@ -118,7 +118,7 @@ class CollectConfig:
         for name in self.tasks:
             get_task(name)
 
-    def disturbance(self) -> PerturbationBursts | YawTwists | MissedGrasps | ApproachDrifts | None:
+    def disturbance(self) -> Disturbance | None:
         """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, the drifts of
         `approach_drifts`, or the perturbation bursts of `action_noise` (None when 0)."""
         if self.yaw_twists:

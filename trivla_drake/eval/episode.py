@@ -16,10 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.eval.action_noise import BurstState, PerturbationBursts, YawTwists, YawTwistState
+from trivla_drake.eval.action_noise import Disturbance, DisturbanceState
 from trivla_drake.eval.env import TabletopEnv
-from trivla_drake.eval.approach_drifts import ApproachDrifts, ApproachDriftState
-from trivla_drake.eval.missed_grasps import MissedGrasps, MissedGraspState
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
@@ -154,7 +152,7 @@ def _run_subtask(
     seed: int,
     max_steps: int,
     recorder: _Recorder,
-    disturbance: BurstState | YawTwistState | MissedGraspState | ApproachDriftState | None = None,
+    disturbance: DisturbanceState | None = None,
 ) -> tuple[EpisodeResult, dict]:
     """Drive `policy` on one task from the env's current state until success or `max_steps`;
     `disturbance` perturbs the applied actions (the recorded ones stay the policy's)."""
@@ -200,7 +198,7 @@ def run_episode(
     keep_trajectory: bool = False,
     max_steps: int | None = None,
     scenario: Scenario | None = None,
-    action_noise: PerturbationBursts | YawTwists | MissedGrasps | ApproachDrifts | None = None,
+    action_noise: Disturbance | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
 
