@@ -49,6 +49,7 @@ def run_collect(args: argparse.Namespace) -> int:
             yaw_twists=args.yaw_twists,
             missed_grasps=args.missed_grasps,
             approach_drifts=args.approach_drifts,
+            prelude_tasks=args.prelude_tasks,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -144,6 +145,13 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
              "grasp; the oracle stops going down and centres it again first (recovery data for where the wrist "
              "view shows the block off-centre; the recorded actions stay the oracle's). Episodes started from "
              "now on get this setting.",
+    )
+    parser.add_argument(
+        "--prelude-tasks", type=int, default=0,
+        help="before its task the oracle completes 1 to this many other tasks of a chain (drawn per episode, "
+             "never a lift), unrecorded, so the episode starts where a chain's earlier tasks leave the scene "
+             "and the hand (data for the later tasks of 5-task chains; default 0: from the start posture). "
+             "Episodes started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")

@@ -16,6 +16,9 @@ opens, rises and grasps again (eval/missed_grasps.py); disturbed frames are list
 With `approach_drifts` the hand is pushed sideways and turned once on its way down to the first grasp
 and the oracle centres it again before going on down (eval/approach_drifts.py); disturbed frames are
 listed as with `action_noise`.
+With `prelude_tasks` > 0 the oracle first completes 1 to `prelude_tasks` other tasks of a chain (drawn
+per attempt), unrecorded, and the episode starts where they left the scene and the hand, as the later
+tasks of a chain do (eval/episode.py, `run_episode(prelude=...)`); each episode's metadata lists them.
 With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
 name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
@@ -39,6 +42,7 @@ from trivla_drake.data.lerobot import (
     EPISODE_TASK_KEY,
     MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
+    PRELUDE_KEY,
     YAW_TWISTS_KEY,
     LeRobotWriter,
     image_stats,
@@ -49,6 +53,7 @@ from trivla_drake.eval.action_noise import Disturbance, PerturbationBursts, YawT
 from trivla_drake.eval.approach_drifts import ApproachDrifts
 from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
+from trivla_drake.tasks.chains import CHAIN_LENGTH
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
 
 _log = logging.getLogger(__name__)
@@ -61,6 +66,7 @@ STATE_NAMES = (
 TCP_POSE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz"]
 CAMERAS = {"static_rgb": "observation.images.static", "wrist_rgb": "observation.images.wrist"}
 PROGRESS_FILE = "meta/trivla_collection.json"
+MAX_PRELUDE_TASKS = CHAIN_LENGTH - 1
 STAGING = ".staging"
 
 
@@ -96,6 +102,10 @@ class CollectConfig:
     # Push the hand sideways and turn it once on its way down to the first grasp; the oracle centres it
     # again before it goes on down (eval/approach_drifts.py). Recorded per episode (APPROACH_DRIFTS_KEY).
     approach_drifts: bool = False
+    # Before its task the oracle completes 1 to this many other tasks of a chain (drawn per attempt),
+    # unrecorded, so the episode starts where a chain's earlier tasks leave the scene and the hand
+    # (0: from the start posture). Recorded per episode (PRELUDE_KEY, the tasks' names).
+    prelude_tasks: int = 0
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -115,6 +125,10 @@ class CollectConfig:
                              "separate runs")
         if isinstance(self.detours, bool) or not isinstance(self.detours, int) or self.detours < 0:
             raise ValueError(f"--detours must be an integer >= 0, got {self.detours!r}")
+        if (isinstance(self.prelude_tasks, bool) or not isinstance(self.prelude_tasks, int)
+                or not 0 <= self.prelude_tasks <= MAX_PRELUDE_TASKS):
+            raise ValueError(f"--prelude-tasks must be an integer from 0 to {MAX_PRELUDE_TASKS} (a chain has "
+                             f"{MAX_PRELUDE_TASKS + 1} tasks), got {self.prelude_tasks!r}")
         for name in self.tasks:
             get_task(name)
 
@@ -152,8 +166,12 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     seed = derive_seed(config.seed, task, attempt)
     oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps,
                           align_first=config.approach_drifts)
+    prelude = 0
+    if config.prelude_tasks:
+        prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
     result = run_episode(
         task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=config.disturbance(),
+        prelude=prelude, prelude_policy=OraclePolicy() if prelude else None,
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
     if not result.success:
@@ -252,6 +270,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
                         **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
+                        **({PRELUDE_KEY: result["prelude"]} if result.get("prelude") else {}),
                     },
                 )
                 done[task].add(attempt)

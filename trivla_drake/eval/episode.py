@@ -21,7 +21,7 @@ from trivla_drake.eval.env import TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
-from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, sample_chain_scene
+from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, prelude_task, sample_chain_scene
 from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
 
 _log = logging.getLogger(__name__)
@@ -73,9 +73,11 @@ class EpisodeResult:
     steps: int
     reason: str = ""  # why it failed ("" on success)
     trajectory: Trajectory | None = None
+    # The tasks another policy completed first, unrecorded (`run_episode(prelude=...)`), in order.
+    prelude: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "task": self.task,
             "instruction": self.instruction,
             "params": list(self.params),
@@ -84,6 +86,9 @@ class EpisodeResult:
             "steps": self.steps,
             "reason": self.reason,
         }
+        if self.prelude:
+            out["prelude"] = list(self.prelude)
+        return out
 
 
 @dataclass
@@ -187,6 +192,32 @@ def _run_subtask(
     return result, obs
 
 
+def _run_prelude(
+    env: TabletopEnv, obs: dict, policy: Policy, task_name: str, count: int, rng: np.random.Generator,
+    paraphrase: bool,
+) -> tuple[dict, TaskInstance | None, list[str], str]:
+    """`policy` completes `count` other tasks of a chain from the env's current state, unrecorded; then
+    `task_name`'s parameters and instruction are drawn in the state they left. Returns (obs, the
+    instance or None, the tasks completed, why there is no instance)."""
+    done: list[str] = []
+    unrecorded = _Recorder(False, None, env.action_space.control_rate_hz)
+    for _ in range(count):
+        step = prelude_task(env.scene(), rng, exclude={task_name, *done})
+        if step is None:
+            return obs, None, done, f"prelude: no task can run after {done or 'the start'}"
+        sub, obs = _run_subtask(env, obs, policy, step, int(rng.integers(2**31)), get_task(step.task).max_steps,
+                                unrecorded)
+        if not sub.success:
+            return obs, None, done, f"prelude task {step.task}: {sub.reason}"
+        done.append(step.task)
+    task = get_task(task_name)
+    candidates = task.candidates(env.scene())
+    if not candidates:
+        return obs, None, done, f"prelude: {task_name} cannot start after {', '.join(done)}"
+    params = candidates[int(rng.integers(len(candidates)))]
+    return obs, TaskInstance(task_name, params, task.instruction(params, rng, paraphrase=paraphrase)), done, ""
+
+
 def run_episode(
     task_name: str,
     seed: int,
@@ -199,6 +230,8 @@ def run_episode(
     max_steps: int | None = None,
     scenario: Scenario | None = None,
     action_noise: Disturbance | None = None,
+    prelude: int = 0,
+    prelude_policy: Policy | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
 
@@ -207,11 +240,22 @@ def run_episode(
     miss (eval/missed_grasps.py), or pushes the hand off on its way down (eval/approach_drifts.py); its random draws
     come from their own stream derived from `seed`, so the scene is the same with and without).
 
+    With `prelude` > 0, `prelude_policy` (privileged: the oracle) first completes that many other tasks
+    of a chain (never a lift, which leaves a block in the hand), unrecorded and undisturbed, and the
+    episode's task starts where they left the scene and the hand, as the later tasks of a chain do;
+    its parameters and instruction are drawn in that state. A prelude that fails, or leaves the task
+    no way to start, fails the episode with the reason.
+
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
     never escapes. `image_size` None renders no images unless the policy uses them or a video is
     recorded (then 224).
     """
     task = get_task(task_name)
+    if isinstance(prelude, bool) or not isinstance(prelude, int) or prelude < 0:
+        raise ValueError(f"prelude must be an integer >= 0 (tasks before the episode's), got {prelude!r}")
+    if prelude and (prelude_policy is None or not prelude_policy.privileged):
+        raise ValueError("prelude > 0 needs a privileged prelude_policy (the oracle) to complete the tasks before "
+                         "the episode's")
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
     env = shared_env(image_size, scenario)
@@ -219,20 +263,30 @@ def run_episode(
     spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase)
     recorder = _Recorder(keep_trajectory, video_path, env.action_space.control_rate_hz)
     policy_seed = int(rng.integers(2**31))
+    done: list[str] = []
+    why = ""  # why the prelude left no episode to run
     try:
         obs = env.reset(spec)
-        disturbance = None
-        if action_noise is not None:
-            disturbance = action_noise.start(np.random.default_rng(derive_seed(seed, "action_noise")))
-        result, obs = _run_subtask(
-            env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance
-        )
-        recorder.add(obs, None)
+        if prelude:
+            obs, chained, done, why = _run_prelude(env, obs, prelude_policy, task_name, prelude,
+                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase)
+            instance = chained or instance
+        if why:
+            result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0, why)
+        else:
+            disturbance = None
+            if action_noise is not None:
+                disturbance = action_noise.start(np.random.default_rng(derive_seed(seed, "action_noise")))
+            result, obs = _run_subtask(
+                env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance
+            )
+            recorder.add(obs, None)
     except Exception as error:  # noqa: BLE001 - any failure is this episode's failure, the run goes on
         _log.warning("episode %s seed %d failed: %s", task_name, seed, error)
         result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, env.step_index)
         result.reason = f"{type(error).__name__}: {error}"
     result.seed = seed
+    result.prelude = tuple(done)
     result.trajectory = recorder.trajectory
     try:
         recorder.finish()

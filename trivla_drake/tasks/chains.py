@@ -1,5 +1,6 @@
 """CALVIN-style chains: five tasks in a row from one initial state, each chosen only if its
-preconditions hold in the state the previous task left behind."""
+preconditions hold in the state the previous task left behind; and the preludes of collected
+demonstrations that start where a chain's earlier tasks leave the scene."""
 
 from __future__ import annotations
 
@@ -64,3 +65,21 @@ def next_chain_task(
     name = names[int(rng.integers(len(names)))]
     params = options[name][int(rng.integers(len(options[name])))]
     return TaskInstance(name, params, TASKS[name].instruction(params, rng, paraphrase=paraphrase))
+
+
+# Tasks a prelude (eval/episode.py, `run_episode(prelude=...)`) never runs: a lift leaves the block in the
+# hand, and the task after it in a chain is then always place or stack.
+_NOT_IN_PRELUDE = frozenset({"lift_block"})
+
+
+def prelude_task(scene: SceneState, rng: np.random.Generator, exclude: set[str]) -> TaskInstance | None:
+    """One task of a chain's beginning before a recorded task (uniform over the tasks possible in
+    `scene` that are not in `exclude` and leave the hand empty, then over their parameters), or None."""
+    options = {name: params for name, params in chain_options(scene, set()).items()
+               if name not in exclude and name not in _NOT_IN_PRELUDE}
+    if not options:
+        return None
+    names = sorted(options)
+    name = names[int(rng.integers(len(names)))]
+    params = options[name][int(rng.integers(len(options[name])))]
+    return TaskInstance(name, params, TASKS[name].instruction(params, rng))

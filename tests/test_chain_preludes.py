@@ -1,0 +1,104 @@
+"""Chain preludes (`collect --prelude-tasks`): before the recorded task the oracle completes one or more
+other tasks of a chain, unrecorded, so the demonstration starts where a chain's earlier tasks leave the
+scene and the hand, as the second to fifth tasks of a 5-task chain do. Never a lift (it leaves the block
+in the hand); a prelude that fails, or leaves the task no way to start, fails the attempt with the
+reason. Bad settings are refused naming the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trivla_drake.data.lerobot import PRELUDE_KEY, LeRobotReader
+from trivla_drake.tasks.chains import prelude_task
+from trivla_drake.tasks.scene import Layout, sample_scene, scene_from_spec
+
+
+def _scene(seed: int):
+    layout = Layout.default()
+    return scene_from_spec(sample_scene(np.random.default_rng(seed), layout), layout)
+
+
+def test_a_prelude_task_is_possible_now_never_a_lift_and_never_excluded():
+    seen = set()
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        instance = prelude_task(_scene(seed), rng, exclude={"push_block_left", "open_drawer"})
+        assert instance is not None
+        assert instance.task not in {"lift_block", "push_block_left", "open_drawer"}
+        seen.add(instance.task)
+    assert len(seen) >= 5  # drawn among the possible tasks, not always the same
+
+
+def test_no_prelude_task_when_every_possible_task_is_excluded():
+    from trivla_drake.tasks.suite import TASK_NAMES
+
+    assert prelude_task(_scene(0), np.random.default_rng(0), exclude=set(TASK_NAMES)) is None
+
+
+def test_the_episode_starts_where_the_prelude_left_the_hand():
+    from trivla_drake.eval.episode import run_episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    plain = run_episode("turn_on_light", 123, OraclePolicy(), keep_trajectory=True)
+    chained = run_episode("turn_on_light", 123, OraclePolicy(), keep_trajectory=True, prelude=1,
+                          prelude_policy=OraclePolicy())
+    assert plain.success and chained.success, chained.reason
+    assert plain.prelude == () and "prelude" not in plain.to_dict()
+    assert len(chained.prelude) == 1 and chained.prelude[0] not in {"turn_on_light", "lift_block"}
+    assert chained.to_dict()["prelude"] == list(chained.prelude)
+    # Same scene seed, but the recorded hand starts elsewhere: where the prelude's task ended.
+    start_plain, start_chained = plain.trajectory.tcp_poses[0][:3], chained.trajectory.tcp_poses[0][:3]
+    assert np.linalg.norm(start_plain - start_chained) > 0.05
+    assert len(chained.trajectory) == chained.steps  # only the episode's own task is recorded
+
+
+def test_a_prelude_with_nothing_to_run_fails_the_episode_with_the_reason(monkeypatch):
+    import trivla_drake.eval.episode as episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    monkeypatch.setattr(episode, "prelude_task", lambda scene, rng, exclude: None)
+    result = episode.run_episode("open_drawer", 3, OraclePolicy(), prelude=2, prelude_policy=OraclePolicy())
+    assert not result.success and result.steps == 0
+    assert result.reason.startswith("prelude: no task can run")
+
+
+@pytest.mark.parametrize("prelude", [-1, 1.5, True])
+def test_bad_prelude_counts_are_refused(prelude):
+    from trivla_drake.eval.episode import run_episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    with pytest.raises(ValueError, match="prelude must be an integer"):
+        run_episode("open_drawer", 0, OraclePolicy(), prelude=prelude, prelude_policy=OraclePolicy())
+
+
+def test_a_prelude_needs_a_privileged_policy_to_run_it():
+    from trivla_drake.eval.episode import run_episode
+    from trivla_drake.eval.policies import RandomPolicy
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    for other in (None, RandomPolicy()):
+        with pytest.raises(ValueError, match="prelude_policy"):
+            run_episode("open_drawer", 0, OraclePolicy(), prelude=1, prelude_policy=other)
+
+
+@pytest.mark.parametrize("value", [-1, 5, True, 1.0])
+def test_bad_prelude_tasks_settings_name_the_flag(value):
+    from trivla_drake.eval.collect import CollectConfig
+
+    with pytest.raises(ValueError, match="--prelude-tasks"):
+        CollectConfig(out="unused", episodes_per_task=1, prelude_tasks=value).validate()
+
+
+def test_collected_episodes_list_their_prelude(tmp_path):
+    from trivla_drake.eval.collect import CollectConfig, collect
+
+    out = tmp_path / "chained"
+    summary = collect(
+        CollectConfig(out=str(out), episodes_per_task=1, tasks=["turn_off_light"], image_size=32, prelude_tasks=2),
+        progress=False,
+    )
+    assert summary["per_task"] == {"turn_off_light": 1}
+    episode = LeRobotReader(out).episodes[0]
+    assert 1 <= len(episode[PRELUDE_KEY]) <= 2
+    assert "turn_off_light" not in episode[PRELUDE_KEY] and "lift_block" not in episode[PRELUDE_KEY]
