@@ -102,3 +102,36 @@ def test_collected_episodes_list_their_prelude(tmp_path):
     episode = LeRobotReader(out).episodes[0]
     assert 1 <= len(episode[PRELUDE_KEY]) <= 2
     assert "turn_off_light" not in episode[PRELUDE_KEY] and "lift_block" not in episode[PRELUDE_KEY]
+
+
+def test_evaluate_with_a_prelude_starts_each_episode_after_the_oracle_s_chain_tasks():
+    from trivla_drake.eval.evaluate import EvalConfig, evaluate
+
+    report = evaluate(EvalConfig(policy="oracle", tasks=["close_drawer"], episodes=1, prelude=1), progress=False)
+    assert report["tasks"]["close_drawer"]["successes"] == 1
+    assert report["config"]["prelude"] == 1
+
+
+def test_evaluate_redraws_a_failed_prelude_then_reports_its_reason(monkeypatch):
+    import trivla_drake.eval.episode as episode
+    from trivla_drake.eval.evaluate import PRELUDE_REDRAWS, EvalConfig, evaluate
+
+    calls = []
+
+    def nothing_possible(scene, rng, exclude):
+        calls.append(1)
+        return None
+
+    monkeypatch.setattr(episode, "prelude_task", nothing_possible)
+    report = evaluate(EvalConfig(policy="oracle", tasks=["open_drawer"], episodes=1, prelude=2), progress=False)
+    assert len(calls) == PRELUDE_REDRAWS + 1
+    (failure,) = report["tasks"]["open_drawer"]["failures"]
+    assert failure["reason"].startswith("prelude: no task can run")
+
+
+@pytest.mark.parametrize("value", [-1, 5, True])
+def test_bad_evaluate_preludes_name_the_flag(value):
+    from trivla_drake.eval.evaluate import EvalConfig
+
+    with pytest.raises(ValueError, match="--prelude must be"):
+        EvalConfig(tasks=["open_drawer"], episodes=1, prelude=value).validate()

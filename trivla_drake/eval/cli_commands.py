@@ -83,6 +83,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             image_size=args.image_size,
             max_steps=args.max_steps,
             noise_scale=args.noise_scale,
+            prelude=args.prelude,
         )
         if args.threads < 1:
             raise ValueError(f"--threads must be at least 1, got {args.threads}")
@@ -186,6 +187,10 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--image-size", type=int, default=None, help="camera size for policies that look (224)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: per task)")
     add_noise_scale_argument(parser)
+    parser.add_argument("--prelude", type=int, default=0,
+                        help="start every episode after the oracle has completed this many other tasks of a chain "
+                             "(unrecorded): the success of each task where a chain's later tasks start (default 0: "
+                             "from the start posture; a prelude that fails is redrawn)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

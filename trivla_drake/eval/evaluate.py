@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 
+from trivla_drake.tasks.chains import CHAIN_LENGTH
 from trivla_drake.tasks.suite import get_task
 
 _POLICY_CACHE: dict[tuple[str, float | None], object] = {}
@@ -21,6 +22,9 @@ _POLICY_CACHE: dict[tuple[str, float | None], object] = {}
 # Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
 # demonstrations (tests check the two seed sets are disjoint).
 EVAL_BASE_SEED = 1000
+# With a prelude: how many times an episode's scene is redrawn when the oracle's prelude fails or leaves the
+# task no way to start (then the episode counts as a failure with the prelude's reason).
+PRELUDE_REDRAWS = 10
 
 
 @dataclass
@@ -50,6 +54,10 @@ class EvalConfig:
     # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: 1, the
     # paper's; 0: deterministic chunks).
     noise_scale: float | None = None
+    # Episodes start after the oracle has completed this many other tasks of a chain (unrecorded), where
+    # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
+    # way to start is redrawn (it is no failure of the policy).
+    prelude: int = 0
 
     def validate(self) -> None:
         if not self.tasks and self.chains <= 0:
@@ -60,6 +68,8 @@ class EvalConfig:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
+        if isinstance(self.prelude, bool) or not isinstance(self.prelude, int) or not 0 <= self.prelude < CHAIN_LENGTH:
+            raise ValueError(f"--prelude must be an integer from 0 to {CHAIN_LENGTH - 1}, got {self.prelude!r}")
         if self.noise_scale is not None:
             from trivla_drake.nn.policy import check_noise_scale
 
@@ -84,15 +94,21 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
     if config.record_dir is not None:
         video = Path(config.record_dir) / (f"{name}-{index:03d}.mp4" if kind == "episode" else f"chain-{index:03d}.mp4")
     if kind == "episode":
-        result = run_episode(
-            name,
-            derive_seed(config.seed, name, index),
-            policy,
-            paraphrase=config.paraphrases,
-            image_size=config.image_size,
-            video_path=video,
-            max_steps=config.max_steps,
-        )
+        seed = derive_seed(config.seed, name, index)
+        for redraw in range(PRELUDE_REDRAWS + 1):
+            result = run_episode(
+                name,
+                seed if redraw == 0 else derive_seed(config.seed, name, index, "prelude", redraw),
+                policy,
+                paraphrase=config.paraphrases,
+                image_size=config.image_size,
+                video_path=video,
+                max_steps=config.max_steps,
+                prelude=config.prelude,
+                prelude_policy=_policy("oracle", None) if config.prelude else None,
+            )
+            if not (config.prelude and result.reason.startswith("prelude")):
+                break
         return result.to_dict()
     return run_chain(
         derive_seed(config.seed, "chain", index),
