@@ -99,8 +99,13 @@ def test_collected_episodes_list_their_prelude(tmp_path):
         progress=False,
     )
     assert summary["per_task"] == {"turn_off_light": 1}
-    episode = LeRobotReader(out).episodes[0]
+    reader = LeRobotReader(out)
+    episode = reader.episodes[0]
     assert 1 <= len(episode[PRELUDE_KEY]) <= 2
+    # One camera frame per recorded step: the prelude's last step rendered none, the first row has its own.
+    rows = len(reader.episode_frames(0)["action"])
+    for camera in ("observation.images.static", "observation.images.wrist"):
+        assert len(reader.episode_video(0, camera)) == rows
     assert "turn_off_light" not in episode[PRELUDE_KEY] and "lift_block" not in episode[PRELUDE_KEY]
 
 

@@ -179,6 +179,10 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     from trivla_drake.data.video import write_video
 
     trajectory = result.trajectory
+    for obs_key in CAMERAS:
+        if len(trajectory.images.get(obs_key, ())) != len(trajectory):
+            raise RuntimeError(f"{task} attempt {attempt}: {len(trajectory.images.get(obs_key, ()))} {obs_key} "
+                               f"frames for {len(trajectory)} recorded steps")
     staging = Path(config.out) / STAGING
     out["videos"], out["video_stats"] = {}, {}
     for obs_key, feature in CAMERAS.items():

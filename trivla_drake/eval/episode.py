@@ -271,6 +271,8 @@ def run_episode(
             obs, chained, done, why = _run_prelude(env, obs, prelude_policy, task_name, prelude,
                                                    np.random.default_rng(derive_seed(seed, "prelude")), paraphrase)
             instance = chained or instance
+            if recorder.needs_images(env):  # the unrecorded prelude's last step rendered none
+                obs.update(env.images())
         if why:
             result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0, why)
         else:
