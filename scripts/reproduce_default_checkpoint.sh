@@ -166,10 +166,11 @@ for seed in 1003 1004 1005; do
   trivla-drake evaluate --policy "$RUNS/grounded_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/subgoal_offset/more_seeds/grounded_seed$seed.json"
 done
-# 15. The shipped checkpoint (results/grounding_curriculum/): step 12's bind run bound 1500 steps more
-#     on the 720 demonstrations of DART_DATA, going on from its grounding (--keep-grounding: a fresh
-#     one did not bind there), then step 14's follow run from it; the grounding checks of both bind
-#     runs (first frame and along the oracle's approach), the export, its tables and grasps.
+# 15. results/grounding_curriculum/ (shipped until step 21, whose start it is): step 12's bind run bound
+#     1500 steps more on the 720 demonstrations of DART_DATA, going on from its grounding (--keep-grounding:
+#     a fresh one did not bind there), then step 14's follow run from it; the grounding checks of both bind
+#     runs (first frame and along the oracle's approach), the export, its tables and grasps. Steps 16-20
+#     call it "the shipped model" ($CURRICULUM).
 mkdir -p results/grounding_curriculum
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_bind_curriculum" \
     --init "$RUNS/grounded_bind/final" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 \
@@ -181,12 +182,13 @@ done
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_curriculum" \
     --init "$RUNS/grounded_bind_curriculum/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
     --subgoal-offset
-trivla-drake export "$RUNS/grounded_follow_curriculum/final" --out models/trivla_cpu --drop-unused-llm-layers
-trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
-    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
-trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/grounding_curriculum/grasps_shipped.md
+CURRICULUM="$RUNS/curriculum_export"
+trivla-drake export "$RUNS/grounded_follow_curriculum/final" --out "$CURRICULUM" --drop-unused-llm-layers
+trivla-drake tables --full "$CURRICULUM" --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results/grounding_curriculum
+trivla-drake probe --checkpoint "$CURRICULUM" --grasp-episodes 6 > results/grounding_curriculum/grasps_shipped.md
 for seed in 1003 1004 1005; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+  trivla-drake evaluate --policy "$CURRICULUM" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/grounding_curriculum/shipped_seed$seed.json"
 done
 # 16. Optional (DETOURS=1; results/grounding_curriculum/, a grounding check only): a grounding that also
@@ -227,16 +229,14 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$DART_DATA" --out "$RUNS/grounded_b
     --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
 trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --threads 2 \
     > results/grasp_yaw/grounding_check_bind_yaw.md
-trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --drive models/trivla_cpu \
+trivla-drake probe --checkpoint "$RUNS/grounded_bind_yaw/final" --grounding-scenes 20 --drive "$CURRICULUM" \
     --threads 2 > results/grasp_yaw/grounding_check_bind_yaw_along_policy.md
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow_yaw" \
     --init "$RUNS/grounded_bind_yaw/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
     --subgoal-offset --subgoal-yaw
 trivla-drake export "$RUNS/grounded_follow_yaw/final" --out "$RUNS/yaw_export" --drop-unused-llm-layers
-for model in "$RUNS/yaw_export" models/trivla_cpu; do
-  name=$(basename "$model")
-  trivla-drake probe --checkpoint "$model" --grasp-episodes 6 > "results/grasp_yaw/grasps_$name.md"
-done
+trivla-drake probe --checkpoint "$RUNS/yaw_export" --grasp-episodes 6 > results/grasp_yaw/grasps_yaw_export.md
+trivla-drake probe --checkpoint "$CURRICULUM" --grasp-episodes 6 > results/grasp_yaw/grasps_trivla_cpu.md  # then shipped
 for seed in 1000 1001 1002 1003 1004 1005; do
   trivla-drake evaluate --policy "$RUNS/yaw_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/grasp_yaw/yaw_seed$seed.json"
@@ -256,7 +256,7 @@ if [[ "${TWISTS:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$TWIST_DATA" --out "$RUNS/grounded_bind_twist" \
       --init "$RUNS/grounded_bind_yaw/final" --grounding-phase bind --keep-grounding --subgoal-yaw --lr 1e-3 \
       --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
-  trivla-drake probe --checkpoint "$RUNS/grounded_bind_twist/final" --grounding-scenes 20 --drive models/trivla_cpu \
+  trivla-drake probe --checkpoint "$RUNS/grounded_bind_twist/final" --grounding-scenes 20 --drive "$CURRICULUM" \
       --threads 2 > results/yaw_twists/grounding_check_bind_twist_along_policy.md
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$TWIST_DATA" --out "$RUNS/grounded_follow_twist" \
       --init "$RUNS/grounded_bind_twist/final" --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 \
@@ -318,9 +318,38 @@ if [[ "${DRIFTS:-0}" == 1 ]]; then
   # (collect's base seed 0: episodes 0-2 of each task are its first three demonstrations' scenes).
   mkdir -p results/approach_drifts/diagnostics
   for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --noise-scale 0 --workers 2 \
+    trivla-drake evaluate --policy "$CURRICULUM" --episodes 2 --seed "$seed" --noise-scale 0 --workers 2 \
         --no-progress --json > "results/approach_drifts/diagnostics/n0_seed$seed.json"
   done
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 3 --seed 0 --workers 2 --no-progress --json \
+  trivla-drake evaluate --policy "$CURRICULUM" --episodes 3 --seed 0 --workers 2 --no-progress --json \
       > results/approach_drifts/diagnostics/shipped_training_scenes_seed0.json
 fi
+
+# 21. The shipped checkpoint (results/chain_preludes/): demonstrations that start where a chain's earlier
+#     tasks leave the scene and the hand. 15 clean ones per task (base seed 0, as DATA), then 25
+#     more per task whose oracle first completes 1-4 other tasks of a chain, unrecorded (collect
+#     --prelude-tasks 4): 480 episodes. Step 15's model followed 2500 steps more on them (its follow
+#     run's settings), exported, its tables and three more evaluation seeds; both models on every task
+#     started after a one-task prelude, and on 20 more chains.
+PRELUDE_DATA=${PRELUDE_DATA:-$DATA-prelude}
+trivla-drake collect --out "$PRELUDE_DATA" --episodes-per-task 15 --workers 2
+trivla-drake collect --out "$PRELUDE_DATA" --episodes-per-task 40 --prelude-tasks 4 --workers 2
+mkdir -p results/chain_preludes
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$PRELUDE_DATA" --out "$RUNS/prelude_follow" --init "$CURRICULUM" \
+    --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset
+trivla-drake export "$RUNS/prelude_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+for seed in 1003 1004 1005; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/chain_preludes/shipped_seed$seed.json"
+done
+for model in models/trivla_cpu "$CURRICULUM"; do
+  name=$([[ "$model" == models/trivla_cpu ]] && echo shipped || echo curriculum)
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/chain_preludes/${name}_prelude1_seed$seed.json"
+  done
+  trivla-drake evaluate --policy "$model" --episodes 0 --chains 20 --seed 1003 --workers 2 --no-progress --json \
+      > "results/chain_preludes/${name}_chains20_seed1003.json"
+done

@@ -158,3 +158,17 @@ def test_images_rendered_only_at_chunk_boundaries_are_those_of_every_step_render
     assert len(lazy.seen) == 3 and [t for t, *_ in lazy.seen] == pytest.approx([0.0, 4 / 36, 8 / 36])
     assert lazy.seen == every_step.seen
     assert lazy.seen[0][2] != lazy.seen[2][2]  # the wrist camera moved with the hand
+
+
+def test_chains_only_report_has_no_task_rows():
+    """`evaluate --episodes 0 --chains N` (tasks default to all): no per-task rows and no average,
+    rather than every task at 0.0 from zero episodes."""
+    from trivla_drake.eval.evaluate import summarize
+
+    config = EvalConfig(policy="oracle", tasks=list(TASK_NAMES), episodes=0, chains=2)
+    chains = [{"seed": 1, "completed": 2, "reason": "push_block_left: timeout"}, {"seed": 2, "completed": 5, "reason": ""}]
+    report = summarize(config, [], chains)
+    assert report["tasks"] == {} and report["average_success"] is None
+    assert report["chain_avg_len"] == 3.5 and report["chains"]["completed_at_least"] == [1.0, 1.0, 0.5, 0.5, 0.5]
+    table = format_markdown(report)
+    assert "average" not in table and "| 2 | 1.00 | 1.00 | 0.50 | 0.50 | 0.50 | 3.50 ± 1.06 |" in table

@@ -157,7 +157,7 @@ def run_jobs(config: EvalConfig, jobs: list[tuple], *, progress: bool, descripti
 def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
     """The JSON-able report: per-task rates with standard errors, their average, chain Avg. Len."""
     tasks: dict[str, dict] = {}
-    for name in config.tasks:
+    for name in config.tasks if config.episodes else ():  # --episodes 0: chains only, no task rows
         mine = [e for e in episodes if e["task"] == name]
         n = len(mine)
         successes = sum(e["success"] for e in mine)
