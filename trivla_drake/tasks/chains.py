@@ -58,7 +58,11 @@ def next_chain_task(
     scene: SceneState, rng: np.random.Generator, used: set[str], *, paraphrase: bool = False
 ) -> TaskInstance | None:
     """The next task of a chain (uniform over possible tasks, then over their parameters), or None."""
-    options = chain_options(scene, used)
+    return _draw(chain_options(scene, used), rng, paraphrase)
+
+
+def _draw(options: dict[str, list[tuple]], rng: np.random.Generator, paraphrase: bool) -> TaskInstance | None:
+    """A task uniform over `options`' names, then its parameters uniform over theirs (None if empty)."""
     if not options:
         return None
     names = sorted(options)
@@ -77,9 +81,4 @@ def prelude_task(scene: SceneState, rng: np.random.Generator, exclude: set[str])
     `scene` that are not in `exclude` and leave the hand empty, then over their parameters), or None."""
     options = {name: params for name, params in chain_options(scene, set()).items()
                if name not in exclude and name not in _NOT_IN_PRELUDE}
-    if not options:
-        return None
-    names = sorted(options)
-    name = names[int(rng.integers(len(names)))]
-    params = options[name][int(rng.integers(len(options[name])))]
-    return TaskInstance(name, params, TASKS[name].instruction(params, rng))
+    return _draw(options, rng, paraphrase=False)
