@@ -330,7 +330,7 @@ fi
 #     more per task whose oracle first completes 1-4 other tasks of a chain, unrecorded (collect
 #     --prelude-tasks 4): 480 episodes. Step 15's model followed 2500 steps more on them (its follow
 #     run's settings), exported, its tables and three more evaluation seeds; both models on every task
-#     started after a one-task prelude, and on 20 more chains.
+#     started after a one- and a two-task prelude, and on 40 more chains.
 PRELUDE_DATA=${PRELUDE_DATA:-$DATA-prelude}
 trivla-drake collect --out "$PRELUDE_DATA" --episodes-per-task 15 --workers 2
 trivla-drake collect --out "$PRELUDE_DATA" --episodes-per-task 40 --prelude-tasks 4 --workers 2
@@ -350,6 +350,10 @@ for model in models/trivla_cpu "$CURRICULUM"; do
     trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
         --json > "results/chain_preludes/${name}_prelude1_seed$seed.json"
   done
-  trivla-drake evaluate --policy "$model" --episodes 0 --chains 20 --seed 1003 --workers 2 --no-progress --json \
-      > "results/chain_preludes/${name}_chains20_seed1003.json"
+  for seed in 1003 1004; do
+    trivla-drake evaluate --policy "$model" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/chain_preludes/${name}_chains20_seed$seed.json"
+  done
+  trivla-drake evaluate --policy "$model" --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
+      > "results/chain_preludes/${name}_prelude2_seed1000.json"
 done
