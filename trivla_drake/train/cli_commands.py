@@ -47,6 +47,7 @@ def config_from_args(args: argparse.Namespace):
         min_lr_ratio=args.min_lr_ratio,
         beta2=args.beta2,
         grad_clip=args.grad_clip,
+        ema_decay=args.ema_decay,
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
         seed=args.seed,
@@ -128,6 +129,11 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--beta2", type=float, default=TrainConfig.beta2, help=f"AdamW beta2 (default {TrainConfig.beta2})")
     parser.add_argument("--grad-clip", type=float, default=TrainConfig.grad_clip,
                         help=f"clip the gradient norm to this; 0: no clipping (default {TrainConfig.grad_clip})")
+    parser.add_argument("--ema-decay", type=float, default=TrainConfig.ema_decay,
+                        help="checkpoints hold a moving average of the trained weights over about the last "
+                             "1/(1 - D) steps (0.999: 1000), as diffusion policies are usually evaluated; the "
+                             "trained weights stay in the training state (export --trained-weights); 0: the last "
+                             f"step's weights (default {TrainConfig.ema_decay:g})")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
@@ -203,7 +209,8 @@ def run_export(args: argparse.Namespace) -> int:
 
     try:
         target = export_checkpoint(
-            args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers
+            args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers,
+            trained_weights=args.trained_weights,
         )
     except _user_errors() as error:
         print(f"trivla-drake export: error: {error}", file=sys.stderr)
@@ -225,6 +232,9 @@ def add_export_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--drop-unused-llm-layers", action="store_true",
                         help="keep only System 2's LLM layers up to its read-out layer (select_layer): the "
                              "same actions from a smaller file, but no longer a start for --stage vlm")
+    parser.add_argument("--trained-weights", action="store_true",
+                        help="of a run with --ema-decay: write the weights the optimizer trained, not their "
+                             "moving average (which the checkpoint's model holds)")
     parser.set_defaults(run=run_export)
     return parser
 

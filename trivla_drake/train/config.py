@@ -162,6 +162,10 @@ class TrainConfig:
     # quarter turn, and System 1 reads it (`PolicyConfig.subgoal_yaw`). A bind run from a checkpoint
     # without it adds a fresh yaw head; a follow run needs a grounding bound with it.
     subgoal_yaw: bool = False
+    # Checkpoints hold an exponential moving average of the trained weights with this decay (about the
+    # last 1/(1 - decay) steps; train/weight_average.py); the trained weights themselves stay in the
+    # training state for resuming (`export --trained-weights` writes them). 0: the last step's weights.
+    ema_decay: float = 0.0
     # Write the (all-rank mean) loss to out/log.jsonl every this many steps.
     log_every: int = 10
     # Show a tqdm progress bar (rank 0 only).
@@ -211,6 +215,8 @@ class TrainConfig:
         for name in ("beta1", "beta2"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name} must be in [0, 1); got {getattr(self, name)}")
+        if not 0 <= self.ema_decay < 1:
+            raise ValueError(f"ema_decay must be in [0, 1); got {self.ema_decay}")
         if not 0 <= self.min_lr_ratio <= 1:
             raise ValueError(f"min_lr_ratio must be in [0, 1]; got {self.min_lr_ratio}")
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):

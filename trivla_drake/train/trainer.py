@@ -12,6 +12,7 @@ set, System 2/3 features); then AdamW steps with warm-up + cosine learning rate,
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -34,6 +35,7 @@ from trivla_drake.train import checkpoints as ckpt
 from trivla_drake.train.config import TrainConfig, check_resume_compatible
 from trivla_drake.train.distributed import DistEnv, setup_distributed, teardown_distributed
 from trivla_drake.train.features import hash_module_weights
+from trivla_drake.train.weight_average import WeightAverage
 
 StepCallback = Callable[[int], None]
 
@@ -517,6 +519,11 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         _set_rng_state(rng[env.rank] if env.rank < len(rng) else rng[0], generator)
         if env.rank >= len(rng):
             generator.manual_seed(_rank_seed(config.seed, env.rank) + start_step)
+    average = WeightAverage(model, config.ema_decay) if config.ema_decay > 0 else None
+    if average is not None and train_state is not None:
+        if "weight_average" not in train_state:
+            raise ValueError(f"cannot resume {resume_from}: it holds no weight average")
+        average.load_state_dict(train_state["weight_average"])  # and the trained weights back into the model
     loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
                             config.grounding_weight, config.grounding_phase)
     runner: nn.Module = loss_module
@@ -539,13 +546,19 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     step_times: list[float] = []
     started = time.time()
 
+    def weights_for_checkpoints():
+        return average.swapped_in() if average is not None else contextlib.nullcontext()
+
     def save(at_step: int) -> None:
         states = env.all_gather_object(_rng_state(generator))
         if env.is_main:
             state = {"step": at_step, "optimizer": optimizer.state_dict(), "rng": states,
                      "world_size": env.world_size, "loss_ema": loss_ema}
-            ckpt.write_checkpoint(out / ckpt.CHECKPOINTS_DIR / ckpt.step_dir_name(at_step), model=model,
-                                  train_state=state, config=config)
+            if average is not None:
+                state["weight_average"] = average.state_dict()
+            with weights_for_checkpoints():  # the model a checkpoint holds: the average, if there is one
+                ckpt.write_checkpoint(out / ckpt.CHECKPOINTS_DIR / ckpt.step_dir_name(at_step), model=model,
+                                      train_state=state, config=config)
             ckpt.prune_checkpoints(out, config.keep_checkpoints)
         env.barrier()
 
@@ -562,6 +575,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             if config.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
             optimizer.step()
+            if average is not None:
+                average.update()
             step += 1
             mean_loss = env.mean(float(loss.detach()))
             if not math.isfinite(mean_loss):
@@ -597,8 +612,9 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         from trivla_drake.train import vqa
 
         eval_started = time.time()
-        summary.update(vqa.evaluate_vqa(model, vqa.VQADataset(data_summary["vqa_folder"], "eval"),
-                                        batch_size=config.batch_size, max_questions=config.vqa_eval_questions))
+        with weights_for_checkpoints():
+            summary.update(vqa.evaluate_vqa(model, vqa.VQADataset(data_summary["vqa_folder"], "eval"),
+                                            batch_size=config.batch_size, max_questions=config.vqa_eval_questions))
         summary["vqa_eval_s"] = time.time() - eval_started
     env.barrier()
     summary["weights_sha256_per_rank"] = env.all_gather_object(weights_digest(model))
