@@ -325,7 +325,7 @@ if [[ "${DRIFTS:-0}" == 1 ]]; then
       > results/approach_drifts/diagnostics/shipped_training_scenes_seed0.json
 fi
 
-# 21. The shipped checkpoint (results/chain_preludes/): demonstrations that start where a chain's earlier
+# 21. Chain preludes (results/chain_preludes/; shipped until step 22): demonstrations that start where a chain's earlier
 #     tasks leave the scene and the hand. 15 clean ones per task (base seed 0, as DATA), then 25
 #     more per task whose oracle first completes 1-4 other tasks of a chain, unrecorded (collect
 #     --prelude-tasks 4): 480 episodes. Step 15's model followed 2500 steps more on them (its follow
@@ -337,15 +337,16 @@ trivla-drake collect --out "$PRELUDE_DATA" --episodes-per-task 40 --prelude-task
 mkdir -p results/chain_preludes
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$PRELUDE_DATA" --out "$RUNS/prelude_follow" --init "$CURRICULUM" \
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset
-trivla-drake export "$RUNS/prelude_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
-trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
-    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+PRELUDE="$RUNS/prelude_export"
+trivla-drake export "$RUNS/prelude_follow/final" --out "$PRELUDE" --drop-unused-llm-layers
+trivla-drake tables --full "$PRELUDE" --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results/chain_preludes
 for seed in 1003 1004 1005; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+  trivla-drake evaluate --policy "$PRELUDE" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/chain_preludes/shipped_seed$seed.json"
 done
-for model in models/trivla_cpu "$CURRICULUM"; do
-  name=$([[ "$model" == models/trivla_cpu ]] && echo shipped || echo curriculum)
+for model in "$PRELUDE" "$CURRICULUM"; do
+  name=$([[ "$model" == "$PRELUDE" ]] && echo shipped || echo curriculum)
   for seed in 1000 1001 1002; do
     trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
         --json > "results/chain_preludes/${name}_prelude1_seed$seed.json"
@@ -357,3 +358,41 @@ for model in models/trivla_cpu "$CURRICULUM"; do
   trivla-drake evaluate --policy "$model" --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
       > "results/chain_preludes/${name}_prelude2_seed1000.json"
 done
+
+# 22. The shipped checkpoint (results/more_preludes_ema/): 25 more prelude demonstrations per task and 15
+#     more clean ones (collect resumes DATA-prelude's attempt numbers in a copy: 960 episodes, 360 clean),
+#     step 21's model followed 2500 steps more with its settings and a moving average of the weights
+#     (--ema-decay 0.999), exported twice (the average, shipped, and the trained weights, to compare);
+#     both on every task from the start posture and after a one-task prelude; the shipped one's tables,
+#     three more seeds, 40 more chains and every task after a two-task prelude.
+MORE_DATA=${MORE_DATA:-$DATA-prelude-more}
+[[ -d "$MORE_DATA" ]] || cp -r "$PRELUDE_DATA" "$MORE_DATA"
+trivla-drake collect --out "$MORE_DATA" --episodes-per-task 65 --prelude-tasks 4 --workers 2
+trivla-drake collect --out "$MORE_DATA" --episodes-per-task 80 --workers 2
+mkdir -p results/more_preludes_ema
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/more_follow" --init "$PRELUDE" \
+    --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
+trivla-drake export "$RUNS/more_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake export "$RUNS/more_follow/final" --out "$RUNS/more_trained_export" --drop-unused-llm-layers \
+    --trained-weights
+for model in models/trivla_cpu "$RUNS/more_trained_export"; do
+  name=$([[ "$model" == models/trivla_cpu ]] && echo ema || echo trained)
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/more_preludes_ema/${name}_prelude1_seed$seed.json"
+    trivla-drake evaluate --policy "$model" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/more_preludes_ema/${name}_seed$seed.json"
+  done
+done
+for seed in 1003 1004; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+      --json > "results/more_preludes_ema/ema_chains20_seed$seed.json"
+done
+for seed in 1003 1004 1005; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+      > "results/more_preludes_ema/ema_seed$seed.json"
+done
+trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
+    > results/more_preludes_ema/ema_prelude2_seed1000.json
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results

@@ -28,6 +28,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1"}
     (work / "data" / "sim").mkdir()
+    (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
     subprocess.run(["bash", str(SCRIPT)], cwd=work, env=env, check=True, capture_output=True, text=True)
     return [shlex.split(line) for line in calls.read_text().splitlines()]
 
@@ -42,7 +43,8 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
 
 
 def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
-    """models/trivla_cpu: follow on the chain-prelude demonstrations <- the export of follow (with the
+    """models/trivla_cpu: follow (weight average) on more chain-prelude demonstrations <- the export of
+    follow on the chain-prelude demonstrations <- the export of follow (with the
     sub-goal offset) <- bind further on the DART demonstrations (keeping the grounding) <- bind <- joint
     (grounding, token positions) <- System 2 with the dense loss <- the export of the plain recipe's
     9000-step run on the DART demonstrations."""
@@ -55,8 +57,14 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
         return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
 
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
-    assert "--drop-unused-llm-layers" in export
-    preludes = run_writing(export[1].removesuffix("/final"))
+    assert "--drop-unused-llm-layers" in export and "--trained-weights" not in export
+    more = run_writing(export[1].removesuffix("/final"))
+    assert float(option(more, "--ema-decay")) > 0
+    prelude_export = run_writing(option(more, "--init"))
+    assert prelude_export[0] == "export" and "--drop-unused-llm-layers" in prelude_export
+    preludes = run_writing(prelude_export[1].removesuffix("/final"))
+    collect_more = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(more, "--data")]
+    assert [int(option(a, "--prelude-tasks")) if "--prelude-tasks" in a else 0 for a in collect_more] == [4, 0]
     curriculum_export = run_writing(option(preludes, "--init"))
     assert curriculum_export[0] == "export" and "--drop-unused-llm-layers" in curriculum_export
     follow = run_writing(curriculum_export[1].removesuffix("/final"))
@@ -87,8 +95,9 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     assert {k for k in keys if option(offset, k) != option(grounded, k)} == {"--out"}
     assert {k for k in keys if option(follow, k) != option(offset, k)} == {"--out", "--init"}
     assert {k for k in keys if option(preludes, k) != option(follow, k)} == {"--out", "--init", "--data"}
+    assert {k for k in keys if option(more, k) != option(preludes, k)} == {"--out", "--init", "--data"}
     assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0
-               for a in (preludes, follow, curriculum, bind, joint))
+               for a in (more, preludes, follow, curriculum, bind, joint))
     assert option(vlm, "--stage") == "vlm" and float(option(vlm, "--dense-weight")) > 0
     plain_export = run_writing(option(vlm, "--init"))
     second = run_writing(plain_export[1].removesuffix("/final"))
