@@ -88,10 +88,14 @@ def test_checkpoints_hold_the_average_and_resume_to_the_same_run(data, tmp_path)
     assert all(torch.equal(weights[k], v) for k, v in state["trained"].items())
 
 
-def test_trained_weights_of_a_run_without_an_average_and_a_changed_decay_are_refused(data, tmp_path):
+def test_trained_weights_of_a_run_without_an_average_and_a_changed_decay_are_refused(data, tmp_path, capsys):
     train(TrainConfig(**{**_config(tmp_path / "plain", data).to_dict(), "ema_decay": 0.0}))
     with pytest.raises(ValueError, match="no weight average"):
         ckpt.export_checkpoint(tmp_path / "plain" / "final", tmp_path / "x", trained_weights=True)
     assert not (tmp_path / "x").exists()
+    from trivla_drake.cli import main
+
+    assert main(["export", str(tmp_path / "plain" / "final"), "--out", str(tmp_path / "x"), "--trained-weights"]) == 2
+    assert "no weight average" in capsys.readouterr().err and not (tmp_path / "x").exists()
     with pytest.raises(ValueError, match="ema_decay"):
         train(TrainConfig(**{**_config(tmp_path / "plain", data).to_dict(), "steps": 8, "resume": True}))
