@@ -44,8 +44,7 @@ class WeightAverage:
 
     def state_dict(self) -> dict:
         """The average, the trained weights and the update count (for a resumable checkpoint)."""
-        return {
-            "decay": self.decay,
+        return {  # the decay is the run's train_config.json's, which a resume may not change
             "updates": self.updates,
             "average": {k: v.detach().cpu().clone() for k, v in self.average.items()},
             "trained": {k: p.detach().cpu().clone() for k, p in self.params.items()},
