@@ -83,6 +83,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
             image_size=args.image_size,
             max_steps=args.max_steps,
             noise_scale=args.noise_scale,
+            execute_steps=args.execute_steps,
+            ensemble_decay=args.ensemble_decay,
             prelude=args.prelude,
         )
         if args.threads < 1:
@@ -167,6 +169,16 @@ def add_noise_scale_argument(parser: argparse.ArgumentParser) -> None:
                              "from (default 1, the paper's; 0: deterministic chunks)")
 
 
+def add_chunk_execution_arguments(parser: argparse.ArgumentParser) -> None:
+    """--execute-steps / --ensemble-decay: how TriVLA's action chunks are played (see EvalConfig)."""
+    parser.add_argument("--execute-steps", type=int, default=None,
+                        help="TriVLA: replan every this many control steps, playing the first rows of each "
+                             "chunk (1 to 10; default 10, the whole chunk)")
+    parser.add_argument("--ensemble-decay", type=float, default=None,
+                        help="TriVLA: average the overlapping chunks that cover each step with weights "
+                             "exp(-m i), i = 0 the oldest (ACT's temporal ensembling; default: play the newest)")
+
+
 def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     """Register `evaluate` on an argparse subparsers object."""
     parser = commands.add_parser("evaluate", help="closed-loop evaluation: per-task success and chain Avg. Len")
@@ -187,6 +199,7 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--image-size", type=int, default=None, help="camera size for policies that look (224)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: per task)")
     add_noise_scale_argument(parser)
+    add_chunk_execution_arguments(parser)
     parser.add_argument("--prelude", type=int, default=0,
                         help="start every episode after the oracle has completed this many other tasks of a chain "
                              "(unrecorded): the success of each task where a chain's later tasks start (default 0: "

@@ -16,7 +16,7 @@ from pathlib import Path
 from trivla_drake.tasks.chains import CHAIN_LENGTH
 from trivla_drake.tasks.suite import get_task
 
-_POLICY_CACHE: dict[tuple[str, float | None], object] = {}
+_POLICY_CACHE: dict[tuple, object] = {}
 
 
 # Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
@@ -54,6 +54,12 @@ class EvalConfig:
     # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: 1, the
     # paper's; 0: deterministic chunks).
     noise_scale: float | None = None
+    # TriVLA only: replan every this many control steps, playing only the first rows of each chunk (None:
+    # the whole chunk, 10 steps, as the Drake TriVLAPolicy's default).
+    execute_steps: int | None = None
+    # TriVLA only: ACT's temporal ensembling of the chunks that cover a step, weight exp(-m i) with i = 0
+    # the oldest (None: play the newest chunk). Useful with execute_steps < 10, where chunks overlap.
+    ensemble_decay: float | None = None
     # Episodes start after the oracle has completed this many other tasks of a chain (unrecorded), where
     # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
     # way to start is redrawn (it is no failure of the policy).
@@ -74,21 +80,38 @@ class EvalConfig:
             from trivla_drake.nn.policy import check_noise_scale
 
             check_noise_scale(self.noise_scale, "--noise-scale")
+        if self.execute_steps is not None:
+            from trivla_drake.eval.trivla_harness_policy import check_execute_steps
+
+            # The chunk length is the checkpoint's; loading it checks the upper bound.
+            check_execute_steps(self.execute_steps, None, "--execute-steps")
+        if self.ensemble_decay is not None:
+            from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay
+
+            check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
+
+    def policy_key(self) -> tuple:
+        """What loads this config's policy (see `_policy`)."""
+        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay
 
 
-def _policy(spec: str, noise_scale: float | None):
+def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | None = None,
+            ensemble_decay: float | None = None):
+    """The policy `spec` with these TriVLA inference settings, loaded once per process."""
     from trivla_drake.eval.policies import load_policy
 
-    if (spec, noise_scale) not in _POLICY_CACHE:
-        _POLICY_CACHE[spec, noise_scale] = load_policy(spec, noise_scale)
-    return _POLICY_CACHE[spec, noise_scale]
+    key = (spec, noise_scale, execute_steps, ensemble_decay)
+    if key not in _POLICY_CACHE:
+        _POLICY_CACHE[key] = load_policy(spec, noise_scale, execute_steps=execute_steps,
+                                         ensemble_decay=ensemble_decay)
+    return _POLICY_CACHE[key]
 
 
 def _run_job(config: EvalConfig, job: tuple) -> dict:
     """One episode or chain; top level so that worker processes can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
 
-    policy = _policy(config.policy, config.noise_scale)
+    policy = _policy(*config.policy_key())
     kind, name, index = job
     video = None
     if config.record_dir is not None:
@@ -105,7 +128,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 video_path=video,
                 max_steps=config.max_steps,
                 prelude=config.prelude,
-                prelude_policy=_policy("oracle", None) if config.prelude else None,
+                prelude_policy=_policy("oracle") if config.prelude else None,
             )
             if not (config.prelude and result.reason.startswith("prelude")):
                 break
@@ -203,7 +226,7 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
 def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
     """Run the episodes and chains of `config` and return the report (see `summarize`)."""
     config.validate()
-    _policy(config.policy, config.noise_scale)  # fail early (unknown policy, no checkpoint loader) before any work
+    _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
     jobs = [("episode", name, i) for i in range(config.episodes) for name in config.tasks]
     episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}") if jobs else []
     chain_jobs = [("chain", "chain", j) for j in range(config.chains)]

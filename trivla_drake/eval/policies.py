@@ -61,22 +61,39 @@ class RandomPolicy:
         return np.tile(action, (self._hold_steps, 1))
 
 
-def load_checkpoint_policy(path: str | Path, noise_scale: float | None = None) -> Policy:
+def load_checkpoint_policy(
+    path: str | Path,
+    noise_scale: float | None = None,
+    *,
+    execute_steps: int | None = None,
+    ensemble_decay: float | None = None,
+) -> Policy:
     """A learned TriVLA policy from a checkpoint directory (see trivla_harness_policy.py); `noise_scale`
-    sets the standard deviation of the noise System 1's sampling starts from (default 1)."""
+    sets the standard deviation of the noise System 1's sampling starts from (default 1);
+    `execute_steps` K replans every K steps (default: the whole chunk); `ensemble_decay` m averages
+    the chunks covering each step (ACT's temporal ensembling; default: play the newest)."""
     from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
 
-    policy = TriVLAHarnessPolicy.from_checkpoint(path)
+    policy = TriVLAHarnessPolicy.from_checkpoint(path, execute_steps=execute_steps, ensemble_decay=ensemble_decay)
     if noise_scale is not None:
         policy.model.set_initial_noise_scale(noise_scale)
     return policy
 
 
-def load_policy(spec: str, noise_scale: float | None = None) -> Policy:
+def load_policy(
+    spec: str,
+    noise_scale: float | None = None,
+    *,
+    execute_steps: int | None = None,
+    ensemble_decay: float | None = None,
+) -> Policy:
     """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory.
-    `noise_scale` (TriVLA only): the initial noise scale of System 1's sampling (None: 1, the paper's)."""
-    if noise_scale is not None and spec in ("oracle", "random"):
-        raise ValueError(f"--noise-scale applies to TriVLA checkpoints only, not to --policy {spec}")
+    `noise_scale`, `execute_steps`, `ensemble_decay` (TriVLA only): see load_checkpoint_policy."""
+    for field, value in (("--noise-scale", noise_scale), ("--execute-steps", execute_steps),
+                         ("--ensemble-decay", ensemble_decay)):
+        if value is not None and spec in ("oracle", "random"):
+            raise ValueError(f"{field} applies to TriVLA checkpoints only, not to --policy {spec}")
+    settings = dict(execute_steps=execute_steps, ensemble_decay=ensemble_decay)
     if spec == "trivla":
         from trivla_drake.eval.model_loading import default_checkpoint_dir
 
@@ -84,7 +101,7 @@ def load_policy(spec: str, noise_scale: float | None = None) -> Policy:
         if not (default / "config.json").exists():
             raise ValueError(f"--policy trivla needs the shipped checkpoint at {default}; it is missing "
                              "(give a checkpoint directory instead)")
-        return load_checkpoint_policy(default, noise_scale)
+        return load_checkpoint_policy(default, noise_scale, **settings)
     if spec == "oracle":
         from trivla_drake.tasks.oracle import OraclePolicy
 
@@ -96,7 +113,7 @@ def load_policy(spec: str, noise_scale: float | None = None) -> Policy:
         raise ValueError(
             f"--policy {spec!r} is neither one of {', '.join(POLICY_CHOICES)} nor an existing checkpoint path"
         )
-    return load_checkpoint_policy(path, noise_scale)
+    return load_checkpoint_policy(path, noise_scale, **settings)
 
 
 def as_action_rows(output, name: str = "policy output") -> np.ndarray:
