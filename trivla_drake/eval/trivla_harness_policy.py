@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from trivla_drake.nn import TriVLA, load_checkpoint
+from trivla_drake.nn.policy import check_noise_scale
 from trivla_drake.systems.action_chunk_executor import ChunkHistory, select_action
 
 
@@ -32,12 +33,9 @@ def check_execute_steps(steps, horizon: int | None, field: str = "execute_steps"
 def check_ensemble_decay(decay, field: str = "ensemble_decay") -> float:
     """`decay` as a float; ValueError naming `field` unless it is a finite number >= 0."""
     try:
-        value = float(decay)
+        return check_noise_scale(decay, field)  # the same bounds: a finite number >= 0
     except (TypeError, ValueError):
         raise ValueError(f"{field} must be a finite number >= 0, got {decay!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{field} must be a finite number >= 0, got {decay!r}")
-    return value
 
 
 class TriVLAHarnessPolicy:
