@@ -123,12 +123,14 @@ def test_latency_delays_publication_in_sim_time(tiny_model):
     context = simulator.get_mutable_context()
     policy_system = policy.systems["policy"]
     pc = policy_system.GetMyContextFromRoot(context)
-    # System 2/3 publish at 0.1 s; System 1 first runs at 10/36 s and publishes 0.1 s later.
-    simulator.AdvanceTo(10 / 36 + 0.05)
+    # System 2/3 publish at 0.1 s; System 1 first runs at its second tick, 10/36 s (plus its stage
+    # offset), and publishes 0.1 s later.
+    first_run = 10 / 36 + 2 * rates.stage_offset_s
+    simulator.AdvanceTo(first_run + 0.05)
     assert policy_system.GetOutputPort("action_chunk").Eval(pc) is None
-    simulator.AdvanceTo(10 / 36 + 0.11)
+    simulator.AdvanceTo(first_run + 0.11)
     assert policy_system.GetOutputPort("action_chunk").Eval(pc) is not None
-    assert policy_system.GetOutputPort("action_chunk_stamp").Eval(pc)[0] == pytest.approx(10 / 36)
+    assert policy_system.GetOutputPort("action_chunk_stamp").Eval(pc)[0] == pytest.approx(first_run)
 
 
 def test_unconnected_image_port_fails_at_simulation_start(tiny_model):
@@ -160,3 +162,52 @@ def test_wrong_image_size_fails_at_simulation_start(tiny_model):
     diagram.GetInputPort("wrist_rgb").FixValue(context, ImageRgba8U(640, 480))
     with pytest.raises(ValueError, match="wrist_rgb.*640x480.*224x224"):
         Simulator(diagram, context).Initialize()
+
+
+def test_replanning_every_k_steps_updates_all_three_systems_at_that_rate_and_keeps_the_covering_chunks(tiny_model):
+    rates = PolicyRates.replanning_every(2, ensemble_decay=0.1)
+    assert rates.policy_period_s == rates.vision_language_period_s == rates.dynamics_period_s == pytest.approx(2 / 36)
+    assert rates.ensemble_decay == 0.1
+    diagram, station, policy = _closed_loop(tiny_model, rates)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.35)
+    context = simulator.get_context()
+    policy_system, executor = policy.systems["policy"], policy.systems["executor"]
+    # The newest chunk was observed at the last multiple of 2/36 s (plus System 1's stage offset).
+    offset = 2 * rates.stage_offset_s
+    stamp = policy_system.GetOutputPort("action_chunk_stamp").Eval(policy_system.GetMyContextFromRoot(context))[0]
+    assert stamp == pytest.approx(12 / 36 + offset)
+    # A 10-step chunk observed every 2 steps: the 5 newest chunks all cover the next tick, and all are kept.
+    history = executor.GetMyContextFromRoot(context).get_abstract_state(0).get_value()
+    np.testing.assert_allclose(history.stamps, np.arange(4, 13, 2) / 36 + offset)
+
+
+@pytest.mark.parametrize("stage_offset_s", [PolicyRates.stage_offset_s, 0.0])
+def test_each_chunk_is_played_from_its_first_action_at_the_instant_of_its_observation(tiny_model, stage_offset_s):
+    """Sense, think, act in one instant: the first chunk comes at t = 0 and every tick plays an action.
+    With no stage offsets (Drake's simultaneous updates), System 1 would wait a period for System 2/3's
+    features and each chunk would reach the executor one tick late."""
+    rates = PolicyRates(stage_offset_s=stage_offset_s)
+    diagram, station, policy = _closed_loop(tiny_model, rates)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    policy_system, executor = policy.systems["policy"], policy.systems["executor"]
+    simulator.AdvanceTo(15 / 36 + 0.01)
+    pc, ec = policy_system.GetMyContextFromRoot(context), executor.GetMyContextFromRoot(context)
+    chunk = policy_system.GetOutputPort("action_chunk").Eval(pc)
+    stamp = policy_system.GetOutputPort("action_chunk_stamp").Eval(pc)[0]
+    played = executor.played_actions(ec)
+    last_action = executor.GetOutputPort("action").Eval(ec)
+    if stage_offset_s > 0:
+        assert stamp == pytest.approx(10 / 36 + 2 * stage_offset_s)
+        assert played == 16  # ticks 0, 1/36, ..., 15/36
+        np.testing.assert_allclose(last_action, chunk[5], rtol=1e-6)  # row 5 at 5 ticks after the observation
+    else:
+        assert stamp == pytest.approx(10 / 36)  # the first chunk, a period late
+        assert played == 5  # rows 1-5 of that chunk, from tick 11/36
+        np.testing.assert_allclose(last_action, chunk[5], rtol=1e-6)
+
+
+def test_stage_offsets_must_fit_in_a_period(tiny_model):
+    with pytest.raises(ValueError, match="stage_offset_s"):
+        TriVLAPolicy(tiny_model, PolicyRates(stage_offset_s=0.01))  # 3 x 10 ms > 1/36 s

@@ -78,6 +78,16 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _check_chunk_execution(args, model) -> None:
+    """--execute-steps / --ensemble-decay against the model's chunk length, named as the user typed them."""
+    from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay, check_execute_steps
+
+    if args.execute_steps is not None:
+        check_execute_steps(args.execute_steps, int(model.config.policy.action_horizon), "--execute-steps")
+    if args.ensemble_decay is not None:
+        check_ensemble_decay(args.ensemble_decay, "--ensemble-decay")
+
+
 def _cmd_demo(args) -> int:
     from trivla_drake.eval.demo import run_oracle_demo, run_trivla_demo
     from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
@@ -87,9 +97,10 @@ def _cmd_demo(args) -> int:
     get_task(args.task)  # an unknown name fails here, listing the valid ones
     latency = LatencyModel.parse(args.latency)
     if args.policy == "oracle":
-        if args.meshcat or args.record or args.instruction or args.checkpoint or args.noise_scale is not None:
-            raise ValueError("--meshcat, --record, --instruction, --checkpoint and --noise-scale go with "
-                             "--policy trivla")
+        if (args.meshcat or args.record or args.instruction or args.checkpoint or args.noise_scale is not None
+                or args.execute_steps is not None or args.ensemble_decay is not None):
+            raise ValueError("--meshcat, --record, --instruction, --checkpoint, --noise-scale, --execute-steps and "
+                             "--ensemble-decay go with --policy trivla")
         report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed)
     else:
         from trivla_drake.eval.model_loading import load_model
@@ -98,6 +109,7 @@ def _cmd_demo(args) -> int:
         model = load_model(args.checkpoint)
         if args.noise_scale is not None:
             model.set_initial_noise_scale(args.noise_scale)
+        _check_chunk_execution(args, model)
         meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
         if args.meshcat:
             print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
@@ -106,6 +118,7 @@ def _cmd_demo(args) -> int:
         report = run_trivla_demo(
             model, args.task, episodes=args.episodes, seed=args.seed, latency=latency,
             instruction=args.instruction, meshcat=meshcat, max_seconds=args.max_seconds,
+            execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay,
         )
         if args.record:
             meshcat.StopRecording()
@@ -136,7 +149,8 @@ def _cmd_tables(args) -> int:
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
                           seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
-                          noise_scale=args.noise_scale, threads=args.threads,
+                          noise_scale=args.noise_scale, execute_steps=args.execute_steps,
+                          ensemble_decay=args.ensemble_decay, threads=args.threads,
                           results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
     if args.tasks != "all":
         config.tasks = _names(args.tasks)
@@ -210,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     commands = parser.add_subparsers(dest="command", required=True)
-    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser, add_noise_scale_argument
+    from trivla_drake.eval.cli_commands import (add_chunk_execution_arguments, add_collect_parser, add_evaluate_parser,
+                                                 add_noise_scale_argument)
     from trivla_drake.eval.evaluate import EVAL_BASE_SEED
     from trivla_drake.eval.paper_tables import TablesConfig
 
@@ -237,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="episode time limit in sim seconds (default: the task's own limit)")
     demo.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     add_noise_scale_argument(demo)
+    add_chunk_execution_arguments(demo)
     demo.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
     demo.add_argument("--port", type=int, default=None, help="Meshcat port")
     demo.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
@@ -270,6 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
     tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     add_noise_scale_argument(tables)
+    add_chunk_execution_arguments(tables)
     tables.add_argument("--no-reuse", action="store_true",
                         help="do not store or reuse evaluations in OUT/evaluations/ (default: reuse, so a "
                              "killed or extended run redoes only what is missing)")

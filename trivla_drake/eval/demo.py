@@ -10,6 +10,7 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
 
 from trivla_drake.eval.closed_loop import make_closed_loop
+from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay, check_execute_steps
 from trivla_drake.nn import TriVLA
 from trivla_drake.station.scenario import Scenario, load_scenario
 from trivla_drake.systems.latency import LatencyModel
@@ -59,16 +60,24 @@ def run_trivla_demo(
     meshcat: Meshcat | None = None,
     scenario: Scenario | None = None,
     max_seconds: float | None = None,
+    execute_steps: int | None = None,
+    ensemble_decay: float | None = None,
     on_episode_start=None,
 ) -> DemoReport:
     """Run `episodes` closed-loop episodes of `task_name` with TriVLA as Drake systems.
 
     Each episode draws its scene and instruction from `seed + i` (as the evaluation harness does);
-    `instruction` overrides the task's text (success is still the task's predicate).
+    `instruction` overrides the task's text (success is still the task's predicate). With
+    `execute_steps` K, Systems 1, 2 and 3 update every K control steps instead of once per chunk, and
+    `ensemble_decay` averages the overlapping chunks (as `evaluate --execute-steps/--ensemble-decay`).
     """
     task = get_task(task_name)
     latency = latency or LatencyModel()
-    loop = make_closed_loop(scenario or load_scenario(), model, rates=PolicyRates(latency=latency), meshcat=meshcat)
+    horizon = int(model.config.policy.action_horizon)
+    steps = horizon if execute_steps is None else check_execute_steps(execute_steps, horizon, "execute_steps")
+    decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay, "ensemble_decay")
+    rates = PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency)
+    loop = make_closed_loop(scenario or load_scenario(), model, rates=rates, meshcat=meshcat)
     handles = StationHandles(loop.station)
     executor = loop.policy.systems["executor"]
     dt = executor.action_space.dt

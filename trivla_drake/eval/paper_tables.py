@@ -58,6 +58,10 @@ class TablesConfig:
     results_dir: str | None = None
     # Every checkpoint's System 1 sampling noise scale (None: 1, the paper's; see EvalConfig).
     noise_scale: float | None = None
+    # TriVLA replans every this many control steps (None: once per chunk; see EvalConfig.execute_steps).
+    execute_steps: int | None = None
+    # ACT's temporal ensembling of overlapping chunks (None: play the newest; see EvalConfig.ensemble_decay).
+    ensemble_decay: float | None = None
     # Torch threads of this process (workers use 1 each); part of the storage key when not 1.
     threads: int = 1
 
@@ -76,10 +80,10 @@ class TablesConfig:
                 raise ValueError(f"checkpoints['{role}'] = {path} is not a checkpoint directory (no config.json)")
         if not self.seeds or self.episodes < 1:
             raise ValueError("seeds must be non-empty and episodes >= 1")
-        if self.noise_scale is not None:
-            from trivla_drake.nn.policy import check_noise_scale
-
-            check_noise_scale(self.noise_scale, "--noise-scale")
+        # TriVLA's inference settings get `evaluate`'s checks (the chunk length is checked when each
+        # checkpoint loads).
+        EvalConfig(policy="trivla", tasks=list(self.tasks), chains=self.chains, noise_scale=self.noise_scale,
+                   execute_steps=self.execute_steps, ensemble_decay=self.ensemble_decay).validate()
 
 
 def _mean_stderr(values: list[float]) -> tuple[float, float]:
@@ -108,6 +112,10 @@ def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> d
     # they existed still match.
     if config.noise_scale is not None:
         settings = {**settings, "noise_scale": float(config.noise_scale)}
+    if config.execute_steps is not None:
+        settings = {**settings, "execute_steps": int(config.execute_steps)}
+    if config.ensemble_decay is not None:
+        settings = {**settings, "ensemble_decay": float(config.ensemble_decay)}
     if config.threads != 1:  # TriVLA's results depend on torch's thread count (reduction order)
         settings = {**settings, "threads": config.threads}
     key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
@@ -129,7 +137,8 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
     def one_seed(seed: int) -> dict:
         eval_config = EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
                                  chains=chains, paraphrases=paraphrases, workers=config.workers,
-                                 max_steps=config.max_steps, noise_scale=config.noise_scale)
+                                 max_steps=config.max_steps, noise_scale=config.noise_scale,
+                                 execute_steps=config.execute_steps, ensemble_decay=config.ensemble_decay)
         settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
@@ -177,7 +186,8 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
                         "latency": label, "max_seconds": max_seconds}
             report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(
                 model, task, episodes=config.latency_episodes, seed=config.seeds[0], latency=latency,
-                max_seconds=max_seconds).as_dict())
+                max_seconds=max_seconds, execute_steps=config.execute_steps,
+                ensemble_decay=config.ensemble_decay).as_dict())
             successes.append(report["success_rate"])
             control.append(report["control_hz"])
         rows[label] = {"success_rate": float(np.mean(successes)), "control_hz": float(np.mean(control))}
@@ -216,6 +226,10 @@ def format_tables(report: dict) -> str:
                   f"(each seed's mean is one sample of the stderr), {cfg['chains']} five-task chains per seed, "
                   f"latency rows {cfg['latency_episodes']} episodes on each of {', '.join(cfg['latency_tasks'])}"
                   + (f", System 1 sampling noise scale {cfg['noise_scale']:g}" if cfg.get("noise_scale") is not None
+                     else "")
+                  + (f", replanning every {cfg['execute_steps']} control steps" if cfg.get("execute_steps") is not None
+                     else "")
+                  + (f", chunks ensembled with decay {cfg['ensemble_decay']:g}" if cfg.get("ensemble_decay") is not None
                      else "") + ".", ""]
     lines += ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
               "| --- | --- | --- |"]

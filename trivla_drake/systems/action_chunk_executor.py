@@ -64,8 +64,9 @@ class ActionChunkExecutor(LeafSystem):
     `robot_state` (18-vector, Panda q then v; read at initialisation for the starting pose).
     Outputs: `ee_target` (RigidTransform of `panda_hand_tcp`, world frame [m]), `gripper_target`
     (1-vector, finger distance [m]), `action` (7-vector, the action applied at the last tick).
-    Every 1 / control_rate_hz seconds (36 Hz) it applies one action (see action_executor.py for
-    the action space); with no chunk covering the time, it holds the commanded pose.
+    Every 1 / control_rate_hz seconds (36 Hz), at offset_s + n / control_rate_hz, it applies one
+    action (see action_executor.py for the action space); with no chunk covering the time, it holds
+    the commanded pose.
     """
 
     def __init__(
@@ -75,10 +76,13 @@ class ActionChunkExecutor(LeafSystem):
         ensemble_decay: float | None = None,
         keep_chunks: int = 4,
         kinematics: PandaKinematics | None = None,
+        offset_s: float = 0.0,
     ):
         super().__init__()
         if ensemble_decay is not None and ensemble_decay < 0:
             raise ValueError(f"ensemble_decay must be >= 0 or None, got {ensemble_decay}")
+        if not 0.0 <= offset_s < space.dt:
+            raise ValueError(f"offset_s must be in [0, dt = {space.dt:g}), got {offset_s}")
         self._space = space
         self._decay = ensemble_decay
         self._keep = keep_chunks if ensemble_decay is not None else 1
@@ -91,7 +95,7 @@ class ActionChunkExecutor(LeafSystem):
         self._pose_index = self.DeclareDiscreteState(13 + ACTION_DIM + 1)
         self._history_index = self.DeclareAbstractState(AbstractValue.Make(ChunkHistory()))
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialise)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(space.dt, 0.0, self._tick)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(space.dt, offset_s, self._tick)
         self.DeclareAbstractOutputPort("ee_target", lambda: AbstractValue.Make(RigidTransform()), self._calc_target)
         self.DeclareVectorOutputPort("gripper_target", 1, self._calc_width)
         self.DeclareVectorOutputPort("action", ACTION_DIM, self._calc_action)

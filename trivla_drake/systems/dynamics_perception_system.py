@@ -22,10 +22,12 @@ class DynamicsPerceptionSystem(PeriodicInferenceSystem):
     up-sampling features resized and concatenated (eq. 2-3); `q_p_stamp`: sim time [s] of the images.
     """
 
-    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0):
+    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0,
+                 offset_s: float = 0.0):
         if model.dynamics is None:
             raise ValueError("DynamicsPerceptionSystem needs a model with System 3 (config.use_system3 = True)")
-        super().__init__(period_s=period_s, latency=latency, output_name="q_p", seed=seed)
+        super().__init__(period_s=period_s, latency=latency, output_name="q_p", seed=seed,
+                         offset_s=offset_s)
         self._model = model
         self._static = declare_image_input(self, "static_rgb")
         self._wrist = declare_image_input(self, "wrist_rgb")

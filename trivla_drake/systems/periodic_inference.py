@@ -26,18 +26,22 @@ class PeriodicInferenceSystem(LeafSystem):
     Output `<output_name>_stamp`: 1-vector, sim time [s] of the observation it was computed from
     (NaN before the first one). Numeric parameter `seed` (set with `set_seed`) seeds each inference
     together with the count of inferences so far, so rollouts are reproducible per Context.
+    Inferences run at offset_s + n period_s [s] of sim time.
     """
 
-    def __init__(self, *, period_s: float, latency: LatencyModel | None, output_name: str, seed: int = 0):
+    def __init__(self, *, period_s: float, latency: LatencyModel | None, output_name: str, seed: int = 0,
+                 offset_s: float = 0.0):
         super().__init__()
         if not period_s > 0:
             raise ValueError(f"{type(self).__name__} period_s must be positive, got {period_s}")
+        if not 0.0 <= offset_s < period_s:
+            raise ValueError(f"{type(self).__name__} offset_s must be in [0, period_s = {period_s:g}), got {offset_s}")
         self._period_s = period_s
         self._latency = latency or LatencyModel()
         self._slots_index = self.DeclareAbstractState(AbstractValue.Make(InferenceSlots()))
         self._seed_index = self.DeclareNumericParameter(BasicVector([float(seed)]))
         self.DeclareInitializationUnrestrictedUpdateEvent(self._on_initialize)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.0, self._on_tick)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._on_tick)
         prerequisites = {self.time_ticket(), self.abstract_state_ticket(self._slots_index)}
         self.DeclareAbstractOutputPort(
             output_name, lambda: AbstractValue.Make(None), self._calc_visible, prerequisites

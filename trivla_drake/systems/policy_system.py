@@ -22,8 +22,10 @@ class PolicySystem(PeriodicInferenceSystem):
     It waits (skips its tick) until the systems it needs have published once.
     """
 
-    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0):
-        super().__init__(period_s=period_s, latency=latency, output_name="action_chunk", seed=seed)
+    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0,
+                 offset_s: float = 0.0):
+        super().__init__(period_s=period_s, latency=latency, output_name="action_chunk", seed=seed,
+                         offset_s=offset_s)
         self._model = model
         self._q_vl = self.DeclareAbstractInputPort("q_vl", AbstractValue.Make(None))
         self._q_p = self.DeclareAbstractInputPort("q_p", AbstractValue.Make(None))

@@ -15,6 +15,7 @@ Ports (stable whatever systems the model keeps):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from pydrake.common.value import AbstractValue
@@ -44,6 +45,36 @@ class PolicyRates:
     # ACT-style temporal ensembling of overlapping chunks (weight decay m), or None to play the newest.
     ensemble_decay: float | None = None
     action_space: ActionSpace = DEFAULT_ACTION_SPACE
+    # Sense, think, act in one instant: Systems 2 and 3 run this long [s] after each period starts
+    # (after the cameras sample), System 1 twice as long (after their features), the chunk executor
+    # three times (after System 1's chunk), so a chunk's first action is played at the instant of its
+    # observation, as the evaluation harness and the demonstrations do. Drake computes simultaneous
+    # updates from the same pre-update state: with 0, System 1 would read the features of the
+    # previous period and the executor the previous chunk.
+    stage_offset_s: float = 1e-4
+
+    @classmethod
+    def replanning_every(
+        cls,
+        steps: int,
+        *,
+        ensemble_decay: float | None = None,
+        latency: LatencyModel | None = None,
+        action_space: ActionSpace = DEFAULT_ACTION_SPACE,
+    ) -> "PolicyRates":
+        """Systems 1, 2 and 3 all update every `steps` control steps (steps * dt seconds), as
+        `evaluate --execute-steps` replans; `steps` is checked against the chunk length by the caller."""
+        period = int(steps) * action_space.dt
+        return cls(vision_language_period_s=period, dynamics_period_s=period, policy_period_s=period,
+                   latency=latency or LatencyModel(), ensemble_decay=ensemble_decay, action_space=action_space)
+
+    def validate(self) -> None:
+        """ValueError naming the field unless the stages fit within the shortest period."""
+        shortest = min(self.vision_language_period_s, self.dynamics_period_s, self.policy_period_s,
+                       self.action_space.dt)
+        if not 0.0 <= 3 * self.stage_offset_s < shortest:
+            raise ValueError(f"PolicyRates.stage_offset_s must be >= 0 and below a third of the shortest period "
+                             f"({shortest:g} s), got {self.stage_offset_s}")
 
 
 class TriVLAPolicy(Diagram):
@@ -52,6 +83,7 @@ class TriVLAPolicy(Diagram):
     def __init__(self, model: TriVLA, rates: PolicyRates | None = None, *, seed: int = 0):
         super().__init__()
         rates = rates or PolicyRates()
+        rates.validate()
         model.eval()
         builder = DiagramBuilder()
         inputs = {
@@ -67,7 +99,9 @@ class TriVLAPolicy(Diagram):
         builder.ExportInput(state_in.get_input_port(), "robot_state")
 
         policy = builder.AddNamedSystem(
-            "system1_policy", PolicySystem(model, period_s=rates.policy_period_s, latency=rates.latency, seed=seed)
+            "system1_policy",
+            PolicySystem(model, period_s=rates.policy_period_s, latency=rates.latency, seed=seed,
+                         offset_s=2 * rates.stage_offset_s),
         )
         builder.Connect(state_in.get_output_port(), policy.GetInputPort("robot_state"))
         self.systems = {"policy": policy}
@@ -82,7 +116,7 @@ class TriVLAPolicy(Diagram):
                 continue
             system = builder.AddNamedSystem(
                 f"system{2 if key == 'vision_language' else 3}_{key}",
-                cls(model, period_s=period, latency=rates.latency, seed=seed + 1),
+                cls(model, period_s=period, latency=rates.latency, seed=seed + 1, offset_s=rates.stage_offset_s),
             )
             for name, source in fan_out.items():
                 builder.Connect(source.get_output_port(), system.GetInputPort(name))
@@ -92,8 +126,13 @@ class TriVLAPolicy(Diagram):
             builder.ExportOutput(system.GetOutputPort(port), port)
             self.systems[key] = system
 
+        # Chunks that can still cover a tick: the newest and those observed within one chunk's duration.
+        chunk_s = model.config.policy.action_horizon * rates.action_space.dt
+        keep_chunks = max(1, math.ceil(chunk_s / rates.policy_period_s - 1e-9))
         executor = builder.AddNamedSystem(
-            "action_chunk_executor", ActionChunkExecutor(rates.action_space, ensemble_decay=rates.ensemble_decay)
+            "action_chunk_executor",
+            ActionChunkExecutor(rates.action_space, ensemble_decay=rates.ensemble_decay, keep_chunks=keep_chunks,
+                                offset_s=3 * rates.stage_offset_s),
         )
         builder.Connect(policy.GetOutputPort("action_chunk"), executor.GetInputPort("action_chunk"))
         builder.Connect(policy.GetOutputPort("action_chunk_stamp"), executor.GetInputPort("action_chunk_stamp"))

@@ -27,10 +27,12 @@ class VisionLanguageSystem(PeriodicInferenceSystem):
     so a new one takes effect at the next System 2 tick.
     """
 
-    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0):
+    def __init__(self, model: TriVLA, *, period_s: float, latency: LatencyModel | None = None, seed: int = 0,
+                 offset_s: float = 0.0):
         if model.vision_language is None:
             raise ValueError("VisionLanguageSystem needs a model with System 2 (config.use_system2 = True)")
-        super().__init__(period_s=period_s, latency=latency, output_name="q_vl", seed=seed)
+        super().__init__(period_s=period_s, latency=latency, output_name="q_vl", seed=seed,
+                         offset_s=offset_s)
         self._model = model
         self._static = declare_image_input(self, "static_rgb")
         self._wrist = declare_image_input(self, "wrist_rgb")
