@@ -4,6 +4,7 @@ step, and bad settings are named."""
 
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 
@@ -122,3 +123,34 @@ def test_chunk_settings_with_a_policy_that_has_no_chunks_are_errors_at_the_cli(c
     assert main(["evaluate", "--policy", "trivla", "--tasks", "lift_block", "--episodes", "1",
                  "--execute-steps", "0", "--no-progress"]) == 2
     assert "--execute-steps" in capsys.readouterr().err
+
+
+def test_demo_and_tables_take_the_same_settings_and_name_bad_ones(tmp_path, capsys):
+    from trivla_drake.cli import main
+    from trivla_drake.eval.paper_tables import TablesConfig, _stored
+
+    assert main(["demo", "--policy", "oracle", "--execute-steps", "5"]) == 2
+    assert "--execute-steps" in capsys.readouterr().err
+    save_checkpoint(TriVLA(make_config("tiny"), load_pretrained=False), str(tmp_path / "ckpt"))
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--execute-steps", "11"]) == 2
+    assert "--execute-steps must be an integer from 1 to the chunk length 10" in capsys.readouterr().err
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--ensemble-decay", "-1"]) == 2
+    assert "--ensemble-decay" in capsys.readouterr().err
+    full = {"full": str(tmp_path / "ckpt")}
+    with pytest.raises(ValueError, match="--execute-steps"):
+        TablesConfig(checkpoints=full, execute_steps=0).validate()
+    with pytest.raises(ValueError, match="--ensemble-decay"):
+        TablesConfig(checkpoints=full, ensemble_decay=math.nan).validate()
+
+    # `tables` stores each setting's evaluations apart, and the default's under its old key.
+    settings = {"kind": "evaluate", "seed": 0}
+    stored = str(tmp_path / "stored")
+    default, replanning = TablesConfig(results_dir=stored), TablesConfig(results_dir=stored, execute_steps=5)
+    ensembled = TablesConfig(results_dir=stored, execute_steps=5, ensemble_decay=0.1)
+    for config, value in ((default, "default"), (replanning, "k5"), (ensembled, "k5e"), (default, "again")):
+        _stored(config, str(tmp_path / "ckpt"), settings, lambda value=value: {"value": value})
+    records = [json.loads(p.read_text())["settings"] for p in (tmp_path / "stored").glob("*.json")]
+    assert sorted(map(str, records)) == sorted(map(str, [settings, {**settings, "execute_steps": 5},
+                                                         {**settings, "execute_steps": 5, "ensemble_decay": 0.1}]))
+    assert _stored(default, str(tmp_path / "ckpt"), settings, lambda: {"value": "recomputed"}) == {"value": "default"}
+    assert _stored(ensembled, str(tmp_path / "ckpt"), settings, lambda: {"value": "recomputed"}) == {"value": "k5e"}

@@ -173,6 +173,7 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
     from trivla_drake.eval.demo import run_trivla_demo
     from trivla_drake.nn import load_checkpoint
     from trivla_drake.systems.latency import LatencyModel
+    from trivla_drake.systems.trivla_policy import PolicyRates
 
     model = load_checkpoint(checkpoint).eval()
     if config.noise_scale is not None:
@@ -182,8 +183,9 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
         successes, control = [], []
         for task in config.latency_tasks:
             max_seconds = config.max_steps / 36.0 if config.max_steps else None
+            # The stage offsets key the Drake pipeline: rows stored before it ran in order are recomputed.
             settings = {"kind": "demo", "task": task, "episodes": config.latency_episodes, "seed": config.seeds[0],
-                        "latency": label, "max_seconds": max_seconds}
+                        "latency": label, "max_seconds": max_seconds, "stage_offset_s": PolicyRates.stage_offset_s}
             report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(
                 model, task, episodes=config.latency_episodes, seed=config.seeds[0], latency=latency,
                 max_seconds=max_seconds, execute_steps=config.execute_steps,
