@@ -396,3 +396,27 @@ trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed
     > results/more_preludes_ema/ema_prelude2_seed1000.json
 trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
     --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+# 23. Optional (CHUNKS=1; results/chunk_execution/): the shipped model replanning every 5 control steps, with and
+#     without ACT's temporal ensembling, and a second moving-average follow run (lr 1.5e-4, seed 2).
+if [[ "${CHUNKS:-0}" == 1 ]]; then
+  mkdir -p results/chunk_execution
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        --execute-steps 5 > "results/chunk_execution/k5_seed$seed.json"
+  done
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        --execute-steps 5 --ensemble-decay 0.1 > "results/chunk_execution/k5e_seed$seed.json"
+  done
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema2_follow" --init models/trivla_cpu \
+      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/ema2_follow/final" --out "$RUNS/ema2_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/ema2_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/chunk_execution/ema2_seed$seed.json"
+  done
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy "$RUNS/ema2_export" --episodes 2 --prelude 1 --seed "$seed" --workers 2 \
+        --no-progress --json > "results/chunk_execution/ema2_prelude1_seed$seed.json"
+  done
+fi
