@@ -136,6 +136,12 @@ def test_demo_and_tables_take_the_same_settings_and_name_bad_ones(tmp_path, caps
     assert "--execute-steps must be an integer from 1 to the chunk length 10" in capsys.readouterr().err
     assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--ensemble-decay", "-1"]) == 2
     assert "--ensemble-decay" in capsys.readouterr().err
+    # A short Drake run records its settings, and every tick plays an action.
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--task", "turn_on_light", "--max-seconds", "0.5",
+                 "--execute-steps", "5", "--ensemble-decay", "0.1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["execute_steps"], report["ensemble_decay"]) == (5, 0.1)
+    assert report["control_hz"] == pytest.approx(36.0, rel=0.03)
     full = {"full": str(tmp_path / "ckpt")}
     with pytest.raises(ValueError, match="--execute-steps"):
         TablesConfig(checkpoints=full, execute_steps=0).validate()

@@ -211,3 +211,28 @@ def test_each_chunk_is_played_from_its_first_action_at_the_instant_of_its_observ
 def test_stage_offsets_must_fit_in_a_period(tiny_model):
     with pytest.raises(ValueError, match="stage_offset_s"):
         TriVLAPolicy(tiny_model, PolicyRates(stage_offset_s=0.01))  # 3 x 10 ms > 1/36 s
+
+
+@pytest.mark.parametrize("bad, field", [
+    (dict(policy_period_s=0.0), "policy_period_s"),
+    (dict(vision_language_period_s=float("nan")), "vision_language_period_s"),
+    (dict(ensemble_decay=float("nan")), "ensemble_decay"),
+    (dict(ensemble_decay=-1.0), "ensemble_decay"),
+])
+def test_bad_rates_name_their_field(tiny_model, bad, field):
+    with pytest.raises(ValueError, match=f"PolicyRates.{field}"):
+        TriVLAPolicy(tiny_model, PolicyRates(**bad))
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True])
+def test_replanning_every_needs_a_whole_number_of_steps(bad):
+    with pytest.raises(ValueError, match="steps must be an integer >= 1"):
+        PolicyRates.replanning_every(bad)
+
+
+def test_the_chunks_that_can_cover_a_tick():
+    from trivla_drake.systems.action_chunk_executor import covering_chunks
+
+    dt = 1 / 36
+    assert [covering_chunks(10 * dt, k * dt) for k in range(1, 11)] == [10, 5, 4, 3, 2, 2, 2, 2, 2, 1]
+    assert covering_chunks(10 * dt, 0.25) == 2  # a period that is no multiple of the control period

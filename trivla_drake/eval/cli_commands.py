@@ -176,7 +176,8 @@ def add_chunk_execution_arguments(parser: argparse.ArgumentParser) -> None:
                              "chunk (1 to 10; default 10, the whole chunk)")
     parser.add_argument("--ensemble-decay", type=float, default=None,
                         help="TriVLA: average the overlapping chunks that cover each step with weights "
-                             "exp(-m i), i = 0 the oldest (ACT's temporal ensembling; default: play the newest)")
+                             "exp(-m i), i = 0 the oldest (ACT's temporal ensembling; default: play the newest; "
+                             "with --execute-steps below the chunk length, since whole chunks do not overlap)")
 
 
 def add_evaluate_parser(commands) -> argparse.ArgumentParser:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -28,6 +29,9 @@ class DemoReport:
 
     policy: str
     latency: str
+    # TriVLA's chunk execution: replanning every this many control steps, and the ensemble decay.
+    execute_steps: int | None = None
+    ensemble_decay: float | None = None
     episodes: list[dict] = field(default_factory=list)
     sim_time: float = 0.0
     wall_time: float = 0.0
@@ -38,6 +42,8 @@ class DemoReport:
         return {
             "policy": self.policy,
             "latency": self.latency,
+            "execute_steps": self.execute_steps,
+            "ensemble_decay": self.ensemble_decay,
             "episodes": self.episodes,
             "success_rate": float(np.mean(successes)) if successes else 0.0,
             # Actions actually applied per simulated second (held ticks while waiting for a
@@ -62,6 +68,7 @@ def run_trivla_demo(
     max_seconds: float | None = None,
     execute_steps: int | None = None,
     ensemble_decay: float | None = None,
+    stage_offset_s: float = PolicyRates.stage_offset_s,
     on_episode_start=None,
 ) -> DemoReport:
     """Run `episodes` closed-loop episodes of `task_name` with TriVLA as Drake systems.
@@ -70,19 +77,23 @@ def run_trivla_demo(
     `instruction` overrides the task's text (success is still the task's predicate). With
     `execute_steps` K, Systems 1, 2 and 3 update every K control steps instead of once per chunk, and
     `ensemble_decay` averages the overlapping chunks (as `evaluate --execute-steps/--ensemble-decay`).
+    `stage_offset_s` is `PolicyRates.stage_offset_s` (0: the stages' simultaneous updates of before
+    session 23, for comparison).
     """
     task = get_task(task_name)
     latency = latency or LatencyModel()
     horizon = int(model.config.policy.action_horizon)
     steps = horizon if execute_steps is None else check_execute_steps(execute_steps, horizon, "execute_steps")
     decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay, "ensemble_decay")
-    rates = PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency)
+    rates = dataclasses.replace(PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency),
+                                stage_offset_s=stage_offset_s)
     loop = make_closed_loop(scenario or load_scenario(), model, rates=rates, meshcat=meshcat)
     handles = StationHandles(loop.station)
     executor = loop.policy.systems["executor"]
     dt = executor.action_space.dt
     limit = max_seconds if max_seconds is not None else task.max_steps * dt
-    report = DemoReport(policy="trivla", latency=latency.mode if latency.mode != "fixed" else f"{latency.seconds}s")
+    report = DemoReport(policy="trivla", latency=latency.mode if latency.mode != "fixed" else f"{latency.seconds}s",
+                        execute_steps=steps, ensemble_decay=decay)
     for episode in range(episodes):
         rng = np.random.default_rng(seed + episode)
         simulator = Simulator(loop.diagram)

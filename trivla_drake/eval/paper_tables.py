@@ -82,7 +82,8 @@ class TablesConfig:
             raise ValueError("seeds must be non-empty and episodes >= 1")
         # TriVLA's inference settings get `evaluate`'s checks (the chunk length is checked when each
         # checkpoint loads).
-        EvalConfig(policy="trivla", tasks=list(self.tasks), chains=self.chains, noise_scale=self.noise_scale,
+        EvalConfig(policy="trivla", tasks=list(self.tasks), episodes=self.episodes, chains=self.chains,
+                   noise_scale=self.noise_scale,
                    execute_steps=self.execute_steps, ensemble_decay=self.ensemble_decay).validate()
 
 
@@ -183,7 +184,8 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
         successes, control = [], []
         for task in config.latency_tasks:
             max_seconds = config.max_steps / 36.0 if config.max_steps else None
-            # The stage offsets key the Drake pipeline: rows stored before it ran in order are recomputed.
+            # The stage offset keys the Drake pipeline: rows stored before its stages ran in order are
+            # recomputed (a later change of the pipeline's behaviour needs a key of its own).
             settings = {"kind": "demo", "task": task, "episodes": config.latency_episodes, "seed": config.seeds[0],
                         "latency": label, "max_seconds": max_seconds, "stage_offset_s": PolicyRates.stage_offset_s}
             report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(

@@ -5,19 +5,18 @@ returns System 1's whole (10, 7) chunk: the same replanning every 10 steps as th
 `TriVLAPolicy`, without simulated latency. With `execute_steps` K the model replans every K steps
 (only the first K rows of each chunk are played), and with `ensemble_decay` m every step's action is
 ACT's temporal ensemble of the chunks that cover it (weight exp(-m i), i = 0 the oldest): the
-harness's counterpart of `PolicyRates(policy_period_s=K / 36, ensemble_decay=m)`.
+harness's counterpart of `PolicyRates.replanning_every(K, ensemble_decay=m)`.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from trivla_drake.nn import TriVLA, load_checkpoint
 from trivla_drake.nn.policy import check_noise_scale
-from trivla_drake.systems.action_chunk_executor import ChunkHistory, select_action
+from trivla_drake.systems.action_chunk_executor import ChunkHistory, covering_chunks, select_action
 
 
 def check_execute_steps(steps, horizon: int | None, field: str = "execute_steps") -> int:
@@ -60,8 +59,7 @@ class TriVLAHarnessPolicy:
         self.execute_steps = horizon if execute_steps is None else check_execute_steps(
             execute_steps, horizon, "execute_steps")
         self.ensemble_decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay)
-        # Chunks that can still cover a step: the newest and the ceil(H / K) - 1 before it.
-        self._keep = math.ceil(horizon / self.execute_steps) if self.ensemble_decay is not None else 1
+        self._keep = covering_chunks(horizon, self.execute_steps) if self.ensemble_decay is not None else 1
         self._instruction = ""
         self._seed = 0
         self._calls = 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,12 @@ class ChunkHistory:
         stamps = (self.stamps + (stamp,))[-keep:]
         chunks = (self.chunks + (np.array(chunk, dtype=np.float64),))[-keep:]
         return ChunkHistory(stamps, chunks)
+
+
+def covering_chunks(chunk_s: float, period_s: float) -> int:
+    """How many chunks can cover one tick when a chunk lasting `chunk_s` is observed every `period_s`
+    seconds: the newest and those observed less than a chunk's duration before it, ceil(chunk_s / period_s)."""
+    return max(1, math.ceil(chunk_s / period_s - 1e-9))  # 1e-9: 10 dt / (2 dt) is 5.000000000000001
 
 
 def select_action(history: ChunkHistory, t: float, dt: float, ensemble_decay: float | None) -> np.ndarray | None:

@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, PassThrough
 from pydrake.systems.sensors import ImageRgba8U
 
 from trivla_drake.nn.trivla import TriVLA
-from trivla_drake.systems.action_chunk_executor import ActionChunkExecutor
+from trivla_drake.systems.action_chunk_executor import ActionChunkExecutor, covering_chunks
 from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE, ActionSpace
 from trivla_drake.systems.dynamics_perception_system import DynamicsPerceptionSystem
 from trivla_drake.systems.latency import LatencyModel
@@ -46,11 +47,12 @@ class PolicyRates:
     ensemble_decay: float | None = None
     action_space: ActionSpace = DEFAULT_ACTION_SPACE
     # Sense, think, act in one instant: Systems 2 and 3 run this long [s] after each period starts
-    # (after the cameras sample), System 1 twice as long (after their features), the chunk executor
-    # three times (after System 1's chunk), so a chunk's first action is played at the instant of its
-    # observation, as the evaluation harness and the demonstrations do. Drake computes simultaneous
-    # updates from the same pre-update state: with 0, System 1 would read the features of the
-    # previous period and the executor the previous chunk.
+    # (reading the cameras' latest held frame, up to 1/fps old), System 1 twice as long (on their
+    # fresh features and the robot state of that instant), the chunk executor three times (after
+    # System 1's chunk), so a chunk's first action is played at the instant of its observation, as
+    # in the evaluation harness and the demonstrations (which also render the images at that instant).
+    # Drake computes simultaneous updates from the same pre-update state: with 0, System 1 would read
+    # the features of the previous period and the executor the previous chunk.
     stage_offset_s: float = 1e-4
 
     @classmethod
@@ -63,13 +65,23 @@ class PolicyRates:
         action_space: ActionSpace = DEFAULT_ACTION_SPACE,
     ) -> "PolicyRates":
         """Systems 1, 2 and 3 all update every `steps` control steps (steps * dt seconds), as
-        `evaluate --execute-steps` replans; `steps` is checked against the chunk length by the caller."""
+        `evaluate --execute-steps` replans (steps above the chunk length would leave ticks uncovered;
+        the caller checks that bound, which is the model's)."""
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ValueError(f"steps must be an integer >= 1 (control steps between replans), got {steps!r}")
         period = int(steps) * action_space.dt
         return cls(vision_language_period_s=period, dynamics_period_s=period, policy_period_s=period,
                    latency=latency or LatencyModel(), ensemble_decay=ensemble_decay, action_space=action_space)
 
     def validate(self) -> None:
-        """ValueError naming the field unless the stages fit within the shortest period."""
+        """ValueError naming the field unless every period is positive, the ensemble decay a number >= 0,
+        and the stages fit within the shortest period."""
+        for name in ("vision_language_period_s", "dynamics_period_s", "policy_period_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"PolicyRates.{name} must be a positive number of seconds, got {value!r}")
+        if self.ensemble_decay is not None and not (math.isfinite(self.ensemble_decay) and self.ensemble_decay >= 0):
+            raise ValueError(f"PolicyRates.ensemble_decay must be a finite number >= 0 or None, got {self.ensemble_decay!r}")
         shortest = min(self.vision_language_period_s, self.dynamics_period_s, self.policy_period_s,
                        self.action_space.dt)
         if not 0.0 <= 3 * self.stage_offset_s < shortest:
@@ -126,9 +138,8 @@ class TriVLAPolicy(Diagram):
             builder.ExportOutput(system.GetOutputPort(port), port)
             self.systems[key] = system
 
-        # Chunks that can still cover a tick: the newest and those observed within one chunk's duration.
         chunk_s = model.config.policy.action_horizon * rates.action_space.dt
-        keep_chunks = max(1, math.ceil(chunk_s / rates.policy_period_s - 1e-9))
+        keep_chunks = covering_chunks(chunk_s, rates.policy_period_s)
         executor = builder.AddNamedSystem(
             "action_chunk_executor",
             ActionChunkExecutor(rates.action_space, ensemble_decay=rates.ensemble_decay, keep_chunks=keep_chunks,
