@@ -93,6 +93,10 @@ class TrainingSamples:
             raise ValueError(f"the dataset at {self.reader.root} has no {TCP_POSE_KEY!r}: it has no sub-goal labels")
         return np.asarray(data["subgoal_is_approach"], dtype=bool)
 
+    def gripper_commands(self, episode: int) -> np.ndarray:
+        """float (T,): one episode's recorded gripper commands (+1 open, -1 closed)."""
+        return np.asarray(self._episode(episode)[self.action_key])[:, GRIPPER_INDEX]
+
     def _episode(self, episode: int) -> dict:
         if episode in self._cache:
             self._cache.move_to_end(episode)

@@ -34,6 +34,18 @@ def approach_frames(gripper: np.ndarray) -> np.ndarray:
     return np.arange(len(gripper)) < first
 
 
+def before_gripper_event_frames(gripper: np.ndarray, window: int) -> np.ndarray:
+    """bool (T,): True for the frames less than `window` frames before a gripper change (the hand's
+    last approach to a grasp or a release), and for the change's own frame."""
+    gripper = np.asarray(gripper, dtype=np.float64)
+    if gripper.ndim != 1:
+        raise ValueError(f"gripper must be (T,); got {gripper.shape}")
+    near = np.zeros(len(gripper), dtype=bool)
+    for change in gripper_changes(gripper):
+        near[max(0, int(change) - window + 1) : int(change) + 1] = True
+    return near
+
+
 def next_gripper_event_frames(gripper: np.ndarray) -> np.ndarray:
     """Per frame t of an episode, the first frame k > t whose gripper command (T,) has another sign
     than frame k-1's, else the last frame. Returns int64 (T,)."""

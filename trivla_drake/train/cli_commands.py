@@ -53,6 +53,7 @@ def config_from_args(args: argparse.Namespace):
         seed=args.seed,
         workers=args.workers,
         fraction=args.fraction,
+        gripper_event_weight=args.gripper_event_weight,
         use_system2=not args.no_system2,
         tcp_features=not args.no_tcp_features,
         use_system3=not args.no_system3,
@@ -138,6 +139,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
     parser.add_argument("--workers", type=int, default=0, help="DataLoader workers per process (default 0)")
+    parser.add_argument("--gripper-event-weight", type=int, default=1,
+                        help="policy: sample the frames less than 1 s before a gripper change (the last approach "
+                             "to each grasp and release) this many times as often as the rest (default 1: uniform)")
     parser.add_argument("--fraction", type=float, default=1.0,
                         help="fraction of each task's episodes to train on (0.1: the 10%%-data experiment)")
     parser.add_argument("--no-system2", action="store_true", help="ablation: a model without System 2")

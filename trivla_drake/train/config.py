@@ -87,6 +87,10 @@ class TrainConfig:
     workers: int = 0
     # Fraction of the dataset's episodes used (per task, at least one each): the 10%-data experiment.
     fraction: float = 1.0
+    # Policy stage: the frames less than `gripper_event_window_s` before a gripper change (the last
+    # approach to each grasp and release) are sampled this many times as often as the rest (1: uniform).
+    gripper_event_weight: int = 1
+    gripper_event_window_s: float = 1.0
     # Keep System 2 (vision-language tokens) in the model; False is the Table 4 ablation "1+3".
     use_system2: bool = True
     # Keep System 3 (dynamics features) in the model; False is the Table 4 ablation "1+2".
@@ -205,6 +209,14 @@ class TrainConfig:
             raise ValueError(f"lr must be > 0; got {self.lr}")
         if not 0 < self.fraction <= 1:
             raise ValueError(f"fraction must be in (0, 1]; got {self.fraction}")
+        if isinstance(self.gripper_event_weight, bool) or not isinstance(self.gripper_event_weight, int) \
+                or self.gripper_event_weight < 1:
+            raise ValueError(f"gripper_event_weight (--gripper-event-weight) must be an integer >= 1; "
+                             f"got {self.gripper_event_weight!r}")
+        if not (isinstance(self.gripper_event_window_s, (int, float)) and self.gripper_event_window_s > 0):
+            raise ValueError(f"gripper_event_window_s must be > 0 seconds; got {self.gripper_event_window_s!r}")
+        if self.gripper_event_weight > 1 and self.stage != "policy":
+            raise ValueError("gripper_event_weight (--gripper-event-weight) applies to the policy stage only")
         if self.vqa_eval_questions < 0:
             raise ValueError(f"vqa_eval_questions must be >= 0; got {self.vqa_eval_questions}")
         if self.workers < 0:

@@ -303,6 +303,18 @@ class PolicyFeatureDataset:
     def __len__(self) -> int:
         return len(self.index)
 
+    def gripper_event_repeats(self, window: int, weight: int) -> np.ndarray:
+        """int (N,): `weight` for the samples less than `window` frames before a gripper change of
+        their episode (the last approach to a grasp or a release), 1 for the rest."""
+        from trivla_drake.data.subgoals import before_gripper_event_frames
+
+        repeats = np.ones(len(self.index), dtype=np.int64)
+        for episode in np.unique(self.index[:, 0]):
+            near = before_gripper_event_frames(self.samples.gripper_commands(int(episode)), window)
+            rows = np.flatnonzero(self.index[:, 0] == episode)
+            repeats[rows[near[self.index[rows, 1]]]] = weight
+        return repeats
+
     def __getitem__(self, i: int) -> dict[str, Any]:
         episode, t, row = (int(v) for v in self.index[i])
         sample = self.samples[int(self._starts[episode]) + t]

@@ -507,8 +507,14 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     from trivla_drake.train.sampler import StepBatchSampler
 
+    repeats = None
+    if config.stage == "policy" and config.gripper_event_weight > 1:
+        window = max(1, round(config.gripper_event_window_s * reader.fps))
+        repeats = dataset.gripper_event_repeats(window, config.gripper_event_weight)
+        data_summary["gripper_event_samples"] = int((repeats > 1).sum())
     sampler = StepBatchSampler(len(dataset), config.batch_size, seed=config.seed, rank=env.rank,
-                               world_size=env.world_size, start_step=start_step, total_steps=config.steps)
+                               world_size=env.world_size, start_step=start_step, total_steps=config.steps,
+                               repeats=repeats)
     loader = torch.utils.data.DataLoader(dataset, batch_sampler=sampler, collate_fn=collate,
                                          num_workers=config.workers, persistent_workers=False)
     optimizer = _optimizer(trained, config)
