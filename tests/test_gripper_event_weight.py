@@ -63,6 +63,9 @@ def test_a_cli_run_with_a_bad_weight_fails_before_any_work(tmp_path, capsys):
     assert main(["train", "--stage", "policy", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "run"),
                  "--gripper-event-weight", "0"]) == 2
     assert "--gripper-event-weight" in capsys.readouterr().err
+    assert main(["train", "--stage", "policy", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "run"),
+                 "--gripper-event-weight", "3", "--gripper-event-window", "-1"]) == 2
+    assert "--gripper-event-window" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
 
 

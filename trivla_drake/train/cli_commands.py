@@ -54,6 +54,7 @@ def config_from_args(args: argparse.Namespace):
         workers=args.workers,
         fraction=args.fraction,
         gripper_event_weight=args.gripper_event_weight,
+        gripper_event_window_s=args.gripper_event_window,
         use_system2=not args.no_system2,
         tcp_features=not args.no_tcp_features,
         use_system3=not args.no_system3,
@@ -142,6 +143,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--gripper-event-weight", type=int, default=1,
                         help="policy: sample the frames less than 1 s before a gripper change (the last approach "
                              "to each grasp and release) this many times as often as the rest (default 1: uniform)")
+    parser.add_argument("--gripper-event-window", type=float, default=1.0,
+                        help="policy, with --gripper-event-weight: how long before a gripper change a frame counts "
+                             "[s] (default 1)")
     parser.add_argument("--fraction", type=float, default=1.0,
                         help="fraction of each task's episodes to train on (0.1: the 10%%-data experiment)")
     parser.add_argument("--no-system2", action="store_true", help="ablation: a model without System 2")

@@ -214,7 +214,8 @@ class TrainConfig:
             raise ValueError(f"gripper_event_weight (--gripper-event-weight) must be an integer >= 1; "
                              f"got {self.gripper_event_weight!r}")
         if not (isinstance(self.gripper_event_window_s, (int, float)) and self.gripper_event_window_s > 0):
-            raise ValueError(f"gripper_event_window_s must be > 0 seconds; got {self.gripper_event_window_s!r}")
+            raise ValueError(f"gripper_event_window_s (--gripper-event-window) must be > 0 seconds; "
+                             f"got {self.gripper_event_window_s!r}")
         if self.gripper_event_weight > 1 and self.stage != "policy":
             raise ValueError("gripper_event_weight (--gripper-event-weight) applies to the policy stage only")
         if self.vqa_eval_questions < 0:
