@@ -420,3 +420,23 @@ if [[ "${CHUNKS:-0}" == 1 ]]; then
         --no-progress --json > "results/chunk_execution/ema2_prelude1_seed$seed.json"
   done
 fi
+# 24. Optional (EMPHASIS=1; results/grasp_emphasis/): step 23's second follow run followed 2500 steps more
+#     (lr 1e-4, seed 3), and the shipped model followed as in step 23 but sampling the frames less than
+#     0.5 s before each gripper change 3 times as often (--gripper-event-weight 3); both on six seeds.
+if [[ "${EMPHASIS:-0}" == 1 ]]; then
+  mkdir -p results/grasp_emphasis
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema3_follow" --init "$RUNS/ema2_export" \
+      --grounding-phase follow --lr 1e-4 --steps 2500 --seed 3 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/ema3_follow/final" --out "$RUNS/ema3_export" --drop-unused-llm-layers
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/event_follow" --init models/trivla_cpu \
+      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999 \
+      --gripper-event-weight 3 --gripper-event-window 0.5
+  trivla-drake export "$RUNS/event_follow/final" --out "$RUNS/event_export" --drop-unused-llm-layers
+  for name in ema3 event; do
+    for seed in 1000 1001 1002 1003 1004 1005; do
+      trivla-drake evaluate --policy "$RUNS/${name}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+          --json > "results/grasp_emphasis/${name}_seed$seed.json"
+    done
+    trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/grasp_emphasis/grasps_$name.md"
+  done
+fi
