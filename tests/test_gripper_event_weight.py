@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.data.subgoals import before_gripper_event_frames
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.sampler import StepBatchSampler
@@ -50,6 +51,8 @@ def test_bad_repeats_are_refused(repeats, match):
     (dict(gripper_event_weight=2.5), "gripper_event_weight"),
     (dict(gripper_event_window_s=0.0), "gripper_event_window_s"),
     (dict(stage="video", gripper_event_weight=3), "policy stage only"),
+    (dict(gripper_event_weight=3, gripper_event_window_s=float("inf")), "gripper_event_window_s"),
+    (dict(gripper_event_window_s=0.5), "needs --gripper-event-weight above 1"),
 ])
 def test_bad_settings_are_named(changes, match):
     config = TrainConfig(**{"stage": "policy", "out": "o", "data": "d", **changes}).resolved()
@@ -69,11 +72,31 @@ def test_a_cli_run_with_a_bad_weight_fails_before_any_work(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
 
 
-def test_a_policy_run_weights_the_frames_before_gripper_changes(tmp_path):
+def test_a_policy_run_weights_the_frames_before_gripper_changes(tmp_path, monkeypatch):
+    import trivla_drake.train.sampler as sampler_module
+
     data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24)
+    reader = LeRobotReader(data)
+    window = 9  # 0.25 s at 36 fps
+    assert reader.fps == 36.0
+    expected = 0
+    for episode in range(3):  # the cached frames (stride 2) within 9 frames before a change
+        gripper = np.asarray(reader.episode_frames(episode)["action"])[:, 6]
+        expected += int(before_gripper_event_frames(gripper, window)[::2].sum())
+    given = []
+
+    class RecordingSampler(StepBatchSampler):
+        def __init__(self, *args, repeats=None, **kwargs):
+            given.append(None if repeats is None else np.asarray(repeats))
+            super().__init__(*args, repeats=repeats, **kwargs)
+
+    monkeypatch.setattr(sampler_module, "StepBatchSampler", RecordingSampler)
     summary = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "run"), preset="tiny", steps=3,
-                                batch_size=4, cache_dir=str(tmp_path / "cache"), progress=False,
-                                use_system2=False, use_system3=False, gripper_event_weight=3))
-    assert 0 < summary["gripper_event_samples"] < summary["samples"]
+                                batch_size=4, cache_dir=str(tmp_path / "cache"), progress=False, feature_stride=2,
+                                use_system2=False, use_system3=False, gripper_event_weight=3,
+                                gripper_event_window_s=0.25))
+    assert 0 < expected < summary["samples"]
+    assert summary["gripper_event_samples"] == expected
+    assert given[0].max() == 3 and int((given[0] == 3).sum()) == expected  # the sampler got the weights
     saved = json.loads((tmp_path / "run" / "final" / "train_config.json").read_text())
-    assert saved["gripper_event_weight"] == 3
+    assert (saved["gripper_event_weight"], saved["gripper_event_window_s"]) == (3, 0.25)

@@ -141,8 +141,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
     parser.add_argument("--workers", type=int, default=0, help="DataLoader workers per process (default 0)")
     parser.add_argument("--gripper-event-weight", type=int, default=1,
-                        help="policy: sample the frames less than 1 s before a gripper change (the last approach "
-                             "to each grasp and release) this many times as often as the rest (default 1: uniform)")
+                        help="policy: sample the frames less than --gripper-event-window seconds before a gripper "
+                             "change (the last approach to each grasp and release) this many times as often as the "
+                             "rest (default 1: uniform)")
     parser.add_argument("--gripper-event-window", type=float, default=1.0,
                         help="policy, with --gripper-event-weight: how long before a gripper change a frame counts "
                              "[s] (default 1)")

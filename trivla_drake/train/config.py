@@ -213,11 +213,14 @@ class TrainConfig:
                 or self.gripper_event_weight < 1:
             raise ValueError(f"gripper_event_weight (--gripper-event-weight) must be an integer >= 1; "
                              f"got {self.gripper_event_weight!r}")
-        if not (isinstance(self.gripper_event_window_s, (int, float)) and self.gripper_event_window_s > 0):
+        if not (isinstance(self.gripper_event_window_s, (int, float)) and math.isfinite(self.gripper_event_window_s)
+                and self.gripper_event_window_s > 0):
             raise ValueError(f"gripper_event_window_s (--gripper-event-window) must be > 0 seconds; "
                              f"got {self.gripper_event_window_s!r}")
         if self.gripper_event_weight > 1 and self.stage != "policy":
             raise ValueError("gripper_event_weight (--gripper-event-weight) applies to the policy stage only")
+        if self.gripper_event_weight == 1 and self.gripper_event_window_s != 1.0:
+            raise ValueError("gripper_event_window_s (--gripper-event-window) needs --gripper-event-weight above 1")
         if self.vqa_eval_questions < 0:
             raise ValueError(f"vqa_eval_questions must be >= 0; got {self.vqa_eval_questions}")
         if self.workers < 0:

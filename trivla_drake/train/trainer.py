@@ -509,7 +509,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     repeats = None
     if config.stage == "policy" and config.gripper_event_weight > 1:
-        window = max(1, round(config.gripper_event_window_s * reader.fps))
+        window = max(1, math.ceil(config.gripper_event_window_s * reader.fps - 1e-9))  # frames < S seconds before
         repeats = dataset.gripper_event_repeats(window, config.gripper_event_weight)
         data_summary["gripper_event_samples"] = int((repeats > 1).sum())
     sampler = StepBatchSampler(len(dataset), config.batch_size, seed=config.seed, rank=env.rank,
