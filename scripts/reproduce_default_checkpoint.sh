@@ -439,4 +439,8 @@ if [[ "${EMPHASIS:-0}" == 1 ]]; then
     done
     trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/grasp_emphasis/grasps_$name.md"
   done
+  for seed in 1003 1004; do
+    trivla-drake evaluate --policy "$RUNS/ema3_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/grasp_emphasis/ema3_chains20_seed$seed.json"
+  done
 fi
