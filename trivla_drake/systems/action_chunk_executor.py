@@ -86,8 +86,8 @@ class ActionChunkExecutor(LeafSystem):
         offset_s: float = 0.0,
     ):
         super().__init__()
-        if ensemble_decay is not None and ensemble_decay < 0:
-            raise ValueError(f"ensemble_decay must be >= 0 or None, got {ensemble_decay}")
+        if ensemble_decay is not None and not (math.isfinite(ensemble_decay) and ensemble_decay >= 0):
+            raise ValueError(f"ensemble_decay must be a finite number >= 0 or None, got {ensemble_decay}")
         if not 0.0 <= offset_s < space.dt:
             raise ValueError(f"offset_s must be in [0, dt = {space.dt:g}), got {offset_s}")
         self._space = space

@@ -74,14 +74,12 @@ class PolicyRates:
                    latency=latency or LatencyModel(), ensemble_decay=ensemble_decay, action_space=action_space)
 
     def validate(self) -> None:
-        """ValueError naming the field unless every period is positive, the ensemble decay a number >= 0,
-        and the stages fit within the shortest period."""
+        """ValueError naming the field unless every period is positive and the stages fit within the
+        shortest period (the executor checks the ensemble decay)."""
         for name in ("vision_language_period_s", "dynamics_period_s", "policy_period_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"PolicyRates.{name} must be a positive number of seconds, got {value!r}")
-        if self.ensemble_decay is not None and not (math.isfinite(self.ensemble_decay) and self.ensemble_decay >= 0):
-            raise ValueError(f"PolicyRates.ensemble_decay must be a finite number >= 0 or None, got {self.ensemble_decay!r}")
         shortest = min(self.vision_language_period_s, self.dynamics_period_s, self.policy_period_s,
                        self.action_space.dt)
         if not 0.0 <= 3 * self.stage_offset_s < shortest:
