@@ -31,3 +31,11 @@ def test_model_bench_reports_per_system_params_and_latency():
     text = json.dumps(report)
     assert report["preset"] == "tiny"
     assert "system1" in text and "system2" in text and "system3" in text
+
+
+def test_precision_without_model_is_refused_by_name():
+    result = subprocess.run(
+        [sys.executable, "-m", "trivla_drake.cli", "bench", "--precision", "bfloat16"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode != 0 and "--precision goes with --model" in result.stderr

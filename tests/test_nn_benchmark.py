@@ -31,8 +31,18 @@ def test_paper_preset_is_skipped_without_cuda_and_never_built_on_cpu():
     assert "Skipped" in format_benchmark_table(result)
 
 
+def test_bfloat16_autocast_runs_every_row_and_is_named_in_the_table():
+    result = benchmark_model("tiny", repeats=1, seed=0, threads=1, precision="bfloat16")
+    assert result["precision"] == "bfloat16" and result["skipped"] is False
+    assert all(row["latency_ms"] > 0 for row in result["ablations"])
+    assert "bfloat16 autocast" in format_benchmark_table(result)
+    assert "autocast" not in format_benchmark_table(benchmark_model("tiny", repeats=1, threads=1))
+
+
 def test_bad_arguments():
     with pytest.raises(ValueError, match="valid presets"):
         benchmark_model("huge")
     with pytest.raises(ValueError, match="repeats"):
         benchmark_model("tiny", repeats=0)
+    with pytest.raises(ValueError, match="precision must be one of float32, bfloat16, float16; got 'fp8'"):
+        benchmark_model("tiny", precision="fp8")

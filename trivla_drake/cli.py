@@ -53,10 +53,12 @@ def _set_torch_threads(threads: int) -> None:
 
 def _cmd_bench(args) -> int:
     result: dict = {}
+    if args.precision != "float32" and not args.model:
+        raise ValueError("--precision goes with --model (the station benchmarks run the model in float32)")
     if args.model:
         from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
 
-        model_result = benchmark_model(preset=args.preset)
+        model_result = benchmark_model(preset=args.preset, precision=args.precision)
         if args.json:
             print(json.dumps(model_result))
         else:
@@ -319,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
     bench.add_argument("--preset", default="cpu", help="model preset for --model (tiny, cpu, paper)")
+    bench.add_argument("--precision", default="float32", choices=("float32", "bfloat16", "float16"),
+                       help="--model: autocast dtype of the timed calls (weights stay float32; default float32)")
     bench.add_argument("--seconds", type=float, default=4.0, help="simulated time per station run [s]")
     bench.add_argument("--diffik-problems", type=int, default=2000, help="diff-IK problems to time")
     bench.add_argument("--scenario", default=None, help="scenarios YAML file")

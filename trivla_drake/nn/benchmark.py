@@ -25,6 +25,10 @@ ABLATIONS = (("1", False, False), ("1+3", False, True), ("1+2+3", True, True))
 
 _WARMUP = 2  # first calls pay one-off kernel/primitive set-up costs
 
+PRECISIONS: dict[str, torch.dtype | None] = {"float32": None, "bfloat16": torch.bfloat16, "float16": torch.float16}
+"""Benchmark precision -> autocast dtype (None: plain float32). Weights stay float32; under autocast the
+matrix products and convolutions run in the reduced dtype, as mixed-precision inference on a GPU does."""
+
 
 def _synchronize(device: torch.device) -> None:
     if device.type == "cuda":
@@ -74,31 +78,39 @@ def benchmark_model(
     *,
     device: str | torch.device | None = None,
     threads: int | None = None,
+    precision: str = "float32",
 ) -> dict[str, Any]:
     """Per-system parameters (millions) and median latency (ms) of System 2, System 3 (both views),
     System 1 (the whole Euler sampling) and the full inference, plus Table 4's ablation rows.
     `threads` sets torch's intra-op threads for the run (restored afterwards); None keeps the current
-    setting. The `paper` preset is skipped (with the reason) when no CUDA device is present."""
+    setting. `precision` is one of PRECISIONS ("bfloat16" or "float16": autocast around every timed call).
+    The `paper` preset is skipped (with the reason) when no CUDA device is present."""
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1; got {repeats}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}; got {precision!r}")
     if threads is None:
-        return _benchmark(preset, repeats, seed, device)
+        return _benchmark(preset, repeats, seed, device, precision)
     if threads < 1:
         raise ValueError(f"threads must be >= 1; got {threads}")
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        return _benchmark(preset, repeats, seed, device)
+        return _benchmark(preset, repeats, seed, device, precision)
     finally:
         torch.set_num_threads(previous)
 
 
-def _benchmark(preset: str, repeats: int, seed: int, device: str | torch.device | None) -> dict[str, Any]:
+def _benchmark(
+    preset: str, repeats: int, seed: int, device: str | torch.device | None, precision: str
+) -> dict[str, Any]:
     config = make_config(preset)
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     result: dict[str, Any] = {
         "preset": preset,
         "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else None,
+        "precision": precision,
         "torch_threads": torch.get_num_threads(),
         # Other processes busy on the same cores make torch's spinning OpenMP threads stall (seconds
         # per call with 2 threads on 2 shared cores); OMP_WAIT_POLICY=PASSIVE or 1 thread avoids it.
@@ -117,14 +129,27 @@ def _benchmark(preset: str, repeats: int, seed: int, device: str | torch.device 
         )
         return result
 
+    autocast_dtype = PRECISIONS[precision]
+    with torch.autocast(device.type, dtype=autocast_dtype, enabled=autocast_dtype is not None):
+        result.update(_time_ablations(config, repeats, seed, device))
+    full = result["latency_ms"]["full"]
+    result.update(
+        goal_ms=CPU_GOAL_MS if preset == "cpu" else None,
+        meets_goal=(full < CPU_GOAL_MS) if preset == "cpu" else None,
+    )
+    return result
+
+
+def _time_ablations(config, repeats: int, seed: int, device: torch.device) -> dict[str, Any]:
+    """Table 4's rows (one model per row, moved to `device`) and the full model's per-system latencies."""
     obs = example_observation(config.vision_language.vision.image_size, config.policy.state_dim, seed)
     ablations = []
     per_system: dict[str, float] = {}
     params: dict[str, float] = {}
     for systems, use2, use3 in ABLATIONS:
         variant = dataclasses.replace(config, use_system2=use2, use_system3=use3)
-        with torch.device(device):
-            model = TriVLA(variant).eval()
+        # Built on the CPU, then moved: the path of a loaded checkpoint (`load_checkpoint(...).to(device)`).
+        model = TriVLA(variant).eval().to(device)
         latency = _median_ms(lambda: model.predict_action_chunk(obs, seed=seed), repeats, device)
         ablations.append(
             {
@@ -159,16 +184,13 @@ def _benchmark(preset: str, repeats: int, seed: int, device: str | torch.device 
             }
         del model
     full = per_system["full"]
-    result.update(
+    return dict(
         skipped=False,
         params_millions=params,
         latency_ms={k: round(v, 2) for k, v in per_system.items()},
         ablations=ablations,
         control_rate_hz=round(config.policy.action_horizon * 1000.0 / full, 1),
-        goal_ms=CPU_GOAL_MS if preset == "cpu" else None,
-        meets_goal=(full < CPU_GOAL_MS) if preset == "cpu" else None,
     )
-    return result
 
 
 def format_benchmark_table(result: dict[str, Any]) -> str:
@@ -183,7 +205,7 @@ def format_benchmark_table(result: dict[str, Any]) -> str:
         return "\n".join(lines)
     params, latency = result["params_millions"], result["latency_ms"]
     lines = [
-        head + f" ({result['torch_threads']} threads, median of {result['repeats']})",
+        head + f" ({_device_words(result)}, median of {result['repeats']})",
         "",
         "| System | Params (M) | Latency (ms) |",
         "|---|---:|---:|",
@@ -216,6 +238,13 @@ def format_benchmark_table(result: dict[str, Any]) -> str:
             "other processes can inflate these figures many times over (set OMP_WAIT_POLICY=PASSIVE or use 1 thread)."
         )
     return "\n".join(lines)
+
+
+def _device_words(result: dict[str, Any]) -> str:
+    """'2 threads' on a CPU, the GPU's name on CUDA; the precision when it is not float32."""
+    words = result.get("device_name") or f"{result['torch_threads']} threads"
+    precision = result.get("precision", "float32")
+    return words if precision == "float32" else f"{words}, {precision} autocast"
 
 
 _SYSTEM_NAMES = (

@@ -76,7 +76,9 @@ class DynamicsPerceptionModule(nn.Module):
         fixed = torch.Generator().manual_seed(config.feature_noise_seed)
         self.register_buffer(
             "fixed_feature_noise",
-            torch.randn((1, config.num_frames, vae.config.latent_channels, side, side), generator=fixed),
+            # drawn on the CPU (where `fixed` lives), then moved to the device the model is being built on
+            torch.randn((1, config.num_frames, vae.config.latent_channels, side, side), generator=fixed,
+                        device="cpu").to(torch.get_default_device()),
             persistent=False,
         )
 

@@ -214,7 +214,9 @@ class VisionLanguageModule(nn.Module):
             mask[b, :pos] = True
         ids, labels, mask, is_image = (t.to(device) for t in (ids, labels, mask, is_image))
         embeds = self.llm.get_input_embeddings()(ids)
-        embeds = embeds.masked_scatter(is_image.unsqueeze(-1), image_tokens.reshape(-1, image_tokens.shape[-1]))
+        # Under autocast the image tokens come out in the autocast dtype while the embedding table stays float32.
+        image_tokens = image_tokens.reshape(-1, image_tokens.shape[-1]).to(embeds.dtype)
+        embeds = embeds.masked_scatter(is_image.unsqueeze(-1), image_tokens)
         return embeds, mask, labels
 
     def forward(self, images: torch.Tensor, instruction_ids: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
