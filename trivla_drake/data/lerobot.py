@@ -50,6 +50,7 @@ PERTURBED_FRAMES_KEY = "trivla/perturbed_frames"
 YAW_TWISTS_KEY = "trivla/yaw_twists"  # the hand's yaw was twisted on its way to the first grasp (--yaw-twists)
 MISSED_GRASPS_KEY = "trivla/missed_grasps"  # the first grasp was made to miss, the expert grasped again (--missed-grasps)
 APPROACH_DRIFTS_KEY = "trivla/approach_drifts"  # the hand drifted off on its way to the first grasp (--approach-drifts)
+TAKEOVER_KEY = "trivla/takeover"  # a learned policy drove first (--takeover CHECKPOINT): the checkpoint's folder
 PRELUDE_KEY = "trivla/prelude"  # tasks the oracle completed, unrecorded, before the episode's (--prelude-tasks)
 DETOURS_KEY = "trivla/detours"  # places the oracle visited before its task (eval/collect.py, --detours)
 TASKS_PATH = "meta/tasks.parquet"

@@ -49,6 +49,7 @@ def run_collect(args: argparse.Namespace) -> int:
             yaw_twists=args.yaw_twists,
             missed_grasps=args.missed_grasps,
             approach_drifts=args.approach_drifts,
+            takeover=args.takeover,
             prelude_tasks=args.prelude_tasks,
         )
         summary = collect(config, progress=not args.no_progress)
@@ -148,6 +149,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
              "grasp; the oracle stops going down and centres it again first (recovery data for where the wrist "
              "view shows the block off-centre; the recorded actions stay the oracle's). Episodes started from "
              "now on get this setting.",
+    )
+    parser.add_argument(
+        "--takeover", default=None, metavar="CHECKPOINT",
+        help="this TriVLA checkpoint drives first (30-150 steps, or until it closes the hand), then the oracle "
+             "takes over from where it left the hand (DAgger-style data: the recorded actions are the oracle's "
+             "in the states the policy reached). Episodes started from now on get this setting.",
     )
     parser.add_argument(
         "--prelude-tasks", type=int, default=0,

@@ -16,6 +16,9 @@ opens, rises and grasps again (eval/missed_grasps.py); disturbed frames are list
 With `approach_drifts` the hand is pushed sideways and turned once on its way down to the first grasp
 and the oracle centres it again before going on down (eval/approach_drifts.py); disturbed frames are
 listed as with `action_noise`.
+With `takeover` (a TriVLA checkpoint) that learned policy drives first and the oracle takes over from
+where it left the hand (eval/policy_takeover.py, DAgger-style data); the policy's steps are listed as
+disturbed frames, as with `action_noise`.
 With `prelude_tasks` > 0 the oracle first completes 1 to `prelude_tasks` other tasks of a chain (drawn
 per attempt), unrecorded, and the episode starts where they left the scene and the hand, as the later
 tasks of a chain do (eval/episode.py, `run_episode(prelude=...)`); each episode's metadata lists them.
@@ -43,6 +46,7 @@ from trivla_drake.data.lerobot import (
     MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
     PRELUDE_KEY,
+    TAKEOVER_KEY,
     YAW_TWISTS_KEY,
     LeRobotWriter,
     image_stats,
@@ -52,6 +56,7 @@ from trivla_drake.data.lerobot import (
 from trivla_drake.eval.action_noise import Disturbance, PerturbationBursts, YawTwists
 from trivla_drake.eval.approach_drifts import ApproachDrifts
 from trivla_drake.eval.missed_grasps import MissedGrasps
+from trivla_drake.eval.policy_takeover import PolicyTakeover
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.chains import CHAIN_LENGTH
 from trivla_drake.tasks.suite import TASK_NAMES, get_task
@@ -102,6 +107,9 @@ class CollectConfig:
     # Push the hand sideways and turn it once on its way down to the first grasp; the oracle centres it
     # again before it goes on down (eval/approach_drifts.py). Recorded per episode (APPROACH_DRIFTS_KEY).
     approach_drifts: bool = False
+    # A TriVLA checkpoint folder: that policy drives first, for a drawn number of steps or until it closes
+    # the hand, then the oracle takes over (eval/policy_takeover.py). Recorded per episode (TAKEOVER_KEY).
+    takeover: str | None = None
     # Before its task the oracle completes 1 to this many other tasks of a chain (drawn per attempt),
     # unrecorded, so the episode starts where a chain's earlier tasks leave the scene and the hand
     # (0: from the start posture). Recorded per episode (PRELUDE_KEY, the tasks' names).
@@ -119,7 +127,8 @@ class CollectConfig:
         self.disturbance()  # validates --action-noise
         chosen = [name for name, on in (("--action-noise", bool(self.action_noise)), ("--yaw-twists", self.yaw_twists),
                                         ("--missed-grasps", self.missed_grasps),
-                                        ("--approach-drifts", self.approach_drifts)) if on]
+                                        ("--approach-drifts", self.approach_drifts),
+                                        ("--takeover", bool(self.takeover))) if on]
         if len(chosen) > 1:
             raise ValueError(f"{' and '.join(chosen)} cannot be combined: collect them into the same dataset in "
                              "separate runs")
@@ -134,13 +143,16 @@ class CollectConfig:
 
     def disturbance(self) -> Disturbance | None:
         """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, the drifts of
-        `approach_drifts`, or the perturbation bursts of `action_noise` (None when 0)."""
+        `approach_drifts`, the policy of `takeover`, or the perturbation bursts of `action_noise` (None
+        when 0)."""
         if self.yaw_twists:
             return YawTwists()
         if self.missed_grasps:
             return MissedGrasps()
         if self.approach_drifts:
             return ApproachDrifts()
+        if self.takeover:
+            return PolicyTakeover(self.takeover)
         return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
@@ -165,7 +177,8 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
 
     seed = derive_seed(config.seed, task, attempt)
     oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps,
-                          align_first=config.approach_drifts)
+                          align_first=config.approach_drifts or bool(config.takeover),
+                          resume_descent=bool(config.takeover))
     prelude = 0
     if config.prelude_tasks:
         prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
@@ -273,6 +286,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
                         **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
                         **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
+                        **({TAKEOVER_KEY: Path(config.takeover).name} if config.takeover else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                         **({PRELUDE_KEY: result["prelude"]} if result.get("prelude") else {}),
                     },

@@ -30,6 +30,11 @@ TURN_FIRST_RAD = 0.1
 # With `align_first`, how far the commanded tcp may be sideways (in x-y) off a `Waypoint.turn_first` leg's
 # target before the expert stops going down and only moves across and turns [m].
 ALIGN_FIRST_M = 0.004
+# With `resume_descent`, a hand found below the leg above a grasp by more than RESUME_BELOW_M, within
+# RESUME_RADIUS_M sideways of the grasp and at least RESUME_ABOVE_M above it goes on with the leg down [m].
+RESUME_BELOW_M = 0.01
+RESUME_RADIUS_M = 0.04
+RESUME_ABOVE_M = 0.03
 
 
 class OraclePolicy:
@@ -40,7 +45,8 @@ class OraclePolicy:
     privileged = True
 
     def __init__(self, action_space: ActionSpace = DEFAULT_ACTION_SPACE, detours: int = 0,
-                 turn_first: bool = False, regrasp: bool = False, align_first: bool = False):
+                 turn_first: bool = False, regrasp: bool = False, align_first: bool = False,
+                 resume_descent: bool = False):
         """`detours`: before its task, the expert visits this many places just above blocks the
         instruction does not name (motions.detours; drawn from the reset's seed). 0: none.
         `turn_first`: on the legs down to a grasp (`Waypoint.turn_first`), hold the position while the
@@ -54,7 +60,13 @@ class OraclePolicy:
         `regrasp`: when the hand is commanded closed although the expert's current leg has it open
         (a missed grasp forced on it, eval/missed_grasps.py), plan again from the scene as it is:
         open, rise, then the task's plan (which grasps again). The expert never does that itself,
-        so without a disturbance it changes nothing."""
+        so without a disturbance it changes nothing.
+        `resume_descent`: on the leg to above a grasp (the leg before a `Waypoint.turn_first` leg), a
+        hand that is already lower (RESUME_BELOW_M), near the grasp (RESUME_RADIUS_M) and still above
+        it (RESUME_ABOVE_M) goes on with the leg down instead of rising back, e.g. after a learned
+        policy drove it there (eval/policy_takeover.py); with `align_first` it first moves across and
+        turns at that height. Undisturbed, the hand reaches each leg's pose from above, so it changes
+        nothing."""
         if isinstance(detours, bool) or not isinstance(detours, (int, np.integer)) or detours < 0:
             raise ValueError(f"detours must be an integer >= 0, got {detours!r}")
         self._space = action_space
@@ -62,6 +74,7 @@ class OraclePolicy:
         self._turn_first = bool(turn_first)
         self._regrasp = bool(regrasp)
         self._align_first = bool(align_first)
+        self._resume_descent = bool(resume_descent)
         self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
@@ -97,6 +110,8 @@ class OraclePolicy:
             # Closed by someone else: whatever it grasped or not, open, rise and go on from the scene as it is.
             self._plan = motions.retreat(scene, closed) + get_task(instance.task).plan(instance.params, scene)
             self._index, self._waited, self._leg_steps = 0, 0, 0
+        if self._resume_descent:
+            self._skip_to_descent(X_cmd)
         dt = self._space.dt
         while self._index < len(self._plan):
             wp = self._plan[self._index]
@@ -121,6 +136,17 @@ class OraclePolicy:
         hold = np.zeros(ACTION_DIM)
         hold[6] = self._gripper
         return hold
+
+    def _skip_to_descent(self, X_cmd: np.ndarray) -> None:
+        """`resume_descent`: go on with the leg down when the hand is already low near its grasp."""
+        if self._index + 1 >= len(self._plan) or not self._plan[self._index + 1].turn_first:
+            return
+        above, down = self._plan[self._index].pose[:3, 3], self._plan[self._index + 1].pose[:3, 3]
+        p = X_cmd[:3, 3]
+        if (p[2] < above[2] - RESUME_BELOW_M and p[2] > down[2] + RESUME_ABOVE_M
+                and float(np.linalg.norm(p[:2] - down[:2])) < RESUME_RADIUS_M):
+            self._index += 1
+            self._waited, self._leg_steps = 0, 0
 
     def _detour_plan(self, scene, instance) -> list[Waypoint]:
         if not self._detours:
