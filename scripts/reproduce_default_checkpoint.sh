@@ -444,3 +444,25 @@ if [[ "${EMPHASIS:-0}" == 1 ]]; then
         --json > "results/grasp_emphasis/ema3_chains20_seed$seed.json"
   done
 fi
+# 25. Optional (TAKEOVER=1; results/policy_takeover/): DAgger-style data. The shipped model drives first
+#     (collect --takeover: 30-150 steps, or until it commands the hand closed), then the oracle takes over
+#     from where it left the hand; 40 more each of lift, stack and place in bowl and 20 more each of rotate
+#     left / right and unstack, added to a copy of MORE_DATA (1140 episodes); the shipped model followed on
+#     them as step 23's ema2 run (its matched control); export, six seeds, grasps.
+if [[ "${TAKEOVER:-0}" == 1 ]]; then
+  TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
+  [[ -d "$TAKEOVER_DATA" ]] || cp -r "$MORE_DATA" "$TAKEOVER_DATA"
+  trivla-drake collect --out "$TAKEOVER_DATA" --episodes-per-task 120 --tasks lift_block,stack_block,place_in_bowl \
+      --takeover models/trivla_cpu --workers 2
+  trivla-drake collect --out "$TAKEOVER_DATA" --episodes-per-task 100 \
+      --tasks rotate_block_left,rotate_block_right,unstack_block --takeover models/trivla_cpu --workers 2
+  mkdir -p results/policy_takeover
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TAKEOVER_DATA" --out "$RUNS/takeover_follow" --init models/trivla_cpu \
+      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/takeover_follow/final" --out "$RUNS/takeover_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/takeover_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/policy_takeover/takeover_seed$seed.json"
+  done
+  trivla-drake probe --checkpoint "$RUNS/takeover_export" --grasp-episodes 6 > results/policy_takeover/grasps_takeover.md
+fi

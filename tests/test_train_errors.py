@@ -69,7 +69,7 @@ def test_resume_with_another_preset_or_a_corrupt_state(setup, capsys, tmp_path):
     assert _train(setup, out, "--preset", "tiny", "--checkpoint-every", "1") == 0
     capsys.readouterr()
     assert _train(setup, out, "--preset", "cpu", "--resume", "--steps", "3") == 2
-    assert "cannot resume: preset was 'tiny'" in capsys.readouterr().err
+    assert "cannot resume: preset (--preset) was 'tiny'" in capsys.readouterr().err
     state = out / "final" / "training_state.pt"
     state.write_bytes(state.read_bytes()[:100])
     assert _train(setup, out, "--resume", "--steps", "3") == 2
@@ -123,3 +123,23 @@ def test_optimizer_settings_out_of_range_are_named(field, value, message, tmp_pa
 
     with pytest.raises(ValueError, match=message):
         TrainConfig(stage="policy", data="d", out=str(tmp_path / "o"), **{field: value}).resolved().validate()
+
+
+def test_every_train_config_field_names_the_flag_that_sets_it():
+    """`flag_of` (used by the resume-mismatch error) against the `train` parser itself."""
+    from trivla_drake.cli import build_parser
+    from trivla_drake.train.config import TrainConfig, check_resume_compatible, flag_of
+
+    parser = build_parser()
+    train = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction").choices["train"]
+    flags = {option for action in train._actions for option in action.option_strings}
+    for field in dataclasses.fields(TrainConfig):
+        flag = flag_of(field.name)
+        same_name = "--" + field.name.replace("_", "-")
+        if flag is None:
+            assert same_name not in flags, field.name
+        else:
+            assert flag in flags, (field.name, flag)
+    saved = TrainConfig(stage="policy", data="d", out="o")
+    with pytest.raises(ValueError, match=r"gripper_event_window_s \(--gripper-event-window\) was 1.0"):
+        check_resume_compatible(saved, dataclasses.replace(saved, gripper_event_window_s=0.5))

@@ -35,6 +35,30 @@ RESUMABLE_CHANGES = frozenset(
 )
 
 
+# The `train` flags whose names are not the field's (`--` + the name with dashes); a test checks them
+# against the parser.
+FLAGS_NAMED_OTHERWISE = {
+    "gripper_event_window_s": "--gripper-event-window",
+    "use_system2": "--no-system2",
+    "use_system3": "--no-system3",
+    "tcp_features": "--no-tcp-features",
+    "vlm_loss_weighting": "--vlm-loss",
+    "progress": "--no-progress",
+}
+# Fields that no `train` flag sets (their defaults, or a preset's).
+FIELDS_WITHOUT_FLAG = frozenset(
+    {"weight_decay", "beta1", "static_camera", "wrist_camera", "feature_batch_size", "feature_seed",
+     "vqa_questions_per_scene", "vqa_eval_questions", "vqa_seed", "log_every", "dist_timeout_minutes"}
+)
+
+
+def flag_of(field_name: str) -> str | None:
+    """The `train` flag that sets TrainConfig's `field_name`, or None."""
+    if field_name in FIELDS_WITHOUT_FLAG:
+        return None
+    return FLAGS_NAMED_OTHERWISE.get(field_name, "--" + field_name.replace("_", "-"))
+
+
 def default_cache_dir() -> str:
     """$XDG_CACHE_HOME/trivla_drake/train (default ~/.cache/trivla_drake/train)."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -321,7 +345,8 @@ def check_resume_compatible(saved: TrainConfig, current: TrainConfig) -> None:
             continue
         old, new = getattr(saved, field.name), getattr(current, field.name)
         if old != new:
+            flag = flag_of(field.name)
             raise ValueError(
-                f"cannot resume: {field.name} was {old!r} in the run being resumed, now {new!r} "
-                "(use the same settings, or another --out for a new run)"
+                f"cannot resume: {field.name}{f' ({flag})' if flag else ''} was {old!r} in the run being resumed, "
+                f"now {new!r} (use the same settings, or another --out for a new run)"
             )
