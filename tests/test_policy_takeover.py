@@ -92,7 +92,8 @@ def test_takeover_cannot_be_combined_with_other_disturbances(checkpoint_dir):
         CollectConfig(out="unused", episodes_per_task=1, takeover="no/such/folder").validate()
 
 
-@pytest.mark.parametrize("task", ["lift_block", "stack_block"])
+@pytest.mark.parametrize("task", ["lift_block", "stack_block", "place_in_bowl", "rotate_block_left", "unstack_block",
+                                  "open_drawer"])
 def test_resume_descent_changes_nothing_without_a_disturbance(task):
     from trivla_drake.eval.episode import run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
@@ -104,10 +105,10 @@ def test_resume_descent_changes_nothing_without_a_disturbance(task):
 
 
 class OffCentreApproach:
-    """A policy that takes the open hand down to 2.5 cm beside the named block at 7 cm, then closes."""
+    """A policy that takes the open hand down to 2.5 cm beside the named block at `height`, then closes."""
 
-    def __init__(self):
-        self.observation = None
+    def __init__(self, height):
+        self.height = height
 
     def reset(self, instruction, seed):
         pass
@@ -115,7 +116,7 @@ class OffCentreApproach:
     def act(self, observation):
         scene, task = observation["privileged"]["scene"], observation["privileged"]["task"]
         target = scene.block_position(task.params[0]) + np.array([0.025, 0.0, 0.0])
-        target[2] = 0.07
+        target[2] = self.height
         d = target - np.asarray(observation["ee_target"])[:3, 3]
         row = np.zeros(7)
         row[6] = 1.0 if np.linalg.norm(d) > 1e-4 else -1.0
@@ -123,27 +124,97 @@ class OffCentreApproach:
         return row[None]
 
 
-@pytest.mark.parametrize("resume", [True, False])
-def test_the_expert_goes_on_down_from_where_the_policy_left_the_hand(monkeypatch, checkpoint_dir, resume):
+@pytest.mark.parametrize(("resume", "height", "first_move"),
+                         [(True, 0.07, "across"), (False, 0.07, "up"), (True, 0.045, "up")])
+def test_the_expert_goes_on_from_where_the_policy_left_the_hand(monkeypatch, checkpoint_dir, resume, height,
+                                                               first_move):
+    """At 7 cm the hand is in the funnel above the grasp: the expert aligns across at that height (with
+    `resume_descent`) or rises back to the leg above the block (without). At 4.5 cm it came down through
+    the funnel and below it: the expert rises first."""
     from trivla_drake.eval.episode import run_episode
-    from trivla_drake.tasks.oracle import ALIGN_FIRST_M, OraclePolicy
+    from trivla_drake.tasks.oracle import ALIGN_FIRST_M, RESUME_ABOVE_M, OraclePolicy
 
-    monkeypatch.setattr(policy_takeover, "_harness_policy", lambda checkpoint, execute_steps: OffCentreApproach())
-    result = run_episode("lift_block", 5, OraclePolicy(align_first=True, resume_descent=resume), image_size=32,
-                         keep_trajectory=True, action_noise=PolicyTakeover(checkpoint_dir, steps=(400, 400)))
+    monkeypatch.setattr(policy_takeover, "_harness_policy", lambda checkpoint, execute_steps: OffCentreApproach(height))
+    expert = OraclePolicy(align_first=True, resume_descent=resume)
+    takeover = PolicyTakeover(checkpoint_dir, steps=(400, 400), expert=expert)
+    result = run_episode("lift_block", 5, expert, image_size=32, keep_trajectory=True, action_noise=takeover)
     assert result.success, result.reason
     trajectory = result.trajectory
     driven = int(np.sum(trajectory.perturbed))
     assert trajectory.perturbed[:driven] == [True] * driven and not any(trajectory.perturbed[driven:])
     tcp = np.stack(trajectory.tcp_poses)[:, :3]
-    first = np.asarray(trajectory.actions[driven])  # the expert's first action of its own
-    assert tcp[driven, 2] < 0.09  # the policy left the hand low, beside the block
-    if resume:  # across, at that height, towards the block
-        closed = int(np.flatnonzero(np.stack(trajectory.actions)[:, 6] <= 0.0)[0])
+    actions = np.stack(trajectory.actions)
+    first = actions[driven]  # the expert's first action of its own
+    assert tcp[driven, 2] < height + 0.01  # the policy left the hand low, beside the block
+    closed = int(np.flatnonzero(actions[:, 6] <= 0.0)[0])
+    if first_move == "across":  # at that height, towards the block
         assert first[2] == 0.0 and first[:2] @ (tcp[closed, :2] - tcp[driven, :2]) > 0.0
         assert np.linalg.norm(tcp[closed, :2] - tcp[driven, :2]) > 0.02 - 2 * ALIGN_FIRST_M
-    else:  # back up to the leg above the block
+    else:
         assert first[2] > 0.0
+    if resume and first_move == "up":  # it rises only into the funnel, then aligns at that height
+        level = int(np.flatnonzero(actions[driven:closed, 2] == 0.0)[0]) + driven
+        grasp_z = tcp[closed, 2]
+        assert RESUME_ABOVE_M - 0.01 < tcp[level, 2] - grasp_z < RESUME_ABOVE_M + 0.03
+
+
+class Expert:
+    def __init__(self):
+        self.replans = 0
+
+    def replan(self):
+        self.replans += 1
+
+
+@pytest.mark.parametrize("rows", [[[0.002, 0, 0, 0, 0, 0, 1.0]], [[0.0, 0, 0, 0, 0, 0, -1.0]]])
+def test_the_expert_is_told_to_plan_again_once_when_the_policy_hands_back(monkeypatch, checkpoint_dir, rows):
+    expert = Expert()
+    monkeypatch.setattr(policy_takeover, "_harness_policy", lambda checkpoint, execute_steps: ScriptedPolicy(rows))
+    state = PolicyTakeover(checkpoint_dir, steps=(3, 3), expert=expert).start(np.random.default_rng(0))
+    for _ in range(8):
+        state.apply(EXPERT, OBS)
+    assert expert.replans == 1 and state.handed_back
+
+
+def test_replan_plans_the_task_again_from_the_scene_as_it_is():
+    from dataclasses import replace
+
+    from trivla_drake.eval.episode import shared_env
+    from trivla_drake.tasks.oracle import OraclePolicy
+    from trivla_drake.tasks.suite import get_task, sample_task_instance
+
+    env = shared_env(None)
+    spec, instance = sample_task_instance(get_task("lift_block"), np.random.default_rng(5), env.layout())
+    obs = env.reset(spec)
+    scene = env.scene()
+    expert = OraclePolicy(align_first=True, resume_descent=True)
+    expert.reset(instance.instruction, 0)
+    expert.act({**obs, "privileged": {"scene": scene, "task": instance}})
+    color = instance.params[0]
+    blocks = dict(scene.blocks)
+    blocks[color] = blocks[color].copy()
+    blocks[color][0, 3] += 0.03  # the policy pushed the block 3 cm
+    pushed = replace(scene, blocks=blocks)
+
+    def grasp_xy():
+        return next(wp for wp in expert.plan if wp.turn_first).pose[:2, 3]
+
+    expert.act({**obs, "privileged": {"scene": pushed, "task": instance}})
+    np.testing.assert_allclose(grasp_xy(), scene.block_position(color)[:2])  # the plan stays
+    expert.replan()
+    expert.act({**obs, "privileged": {"scene": pushed, "task": instance}})
+    np.testing.assert_allclose(grasp_xy(), pushed.block_position(color)[:2])
+
+
+def test_a_checkpoint_that_does_not_load_fails_before_any_episode(tmp_path):
+    from trivla_drake.eval.collect import CollectConfig
+
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "config.json").write_text("{not json")
+    with pytest.raises(ValueError, match="--takeover .*broken"):
+        CollectConfig(out=str(tmp_path / "out"), episodes_per_task=1, takeover=str(broken)).validate()
+    assert not (tmp_path / "out").exists()
 
 
 def test_collect_records_the_takeover_and_masks_the_policys_later_rows(tmp_path, monkeypatch):

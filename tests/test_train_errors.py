@@ -132,14 +132,16 @@ def test_every_train_config_field_names_the_flag_that_sets_it():
 
     parser = build_parser()
     train = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction").choices["train"]
-    flags = {option for action in train._actions for option in action.option_strings}
+    dest_of = {option: action.dest for action in train._actions for option in action.option_strings}
     for field in dataclasses.fields(TrainConfig):
         flag = flag_of(field.name)
         same_name = "--" + field.name.replace("_", "-")
         if flag is None:
-            assert same_name not in flags, field.name
-        else:
-            assert flag in flags, (field.name, flag)
+            assert same_name not in dest_of, field.name
+        else:  # the flag exists, and is the field's (its dest is the field, or the field without a suffix / "no_")
+            dest = dest_of[flag]
+            assert dest in (field.name, field.name.removesuffix("_s"), field.name.removesuffix("_weighting"),
+                            "no_" + field.name, "no_" + field.name.removeprefix("use_")), (field.name, flag, dest)
     saved = TrainConfig(stage="policy", data="d", out="o")
     with pytest.raises(ValueError, match=r"gripper_event_window_s \(--gripper-event-window\) was 1.0"):
         check_resume_compatible(saved, dataclasses.replace(saved, gripper_event_window_s=0.5))

@@ -32,7 +32,7 @@ import json
 import logging
 import shutil
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -124,7 +124,9 @@ class CollectConfig:
             raise ValueError(f"image size must be an even number >= 16, got {self.image_size}")
         if not self.tasks:
             raise ValueError("--tasks is empty")
-        self.disturbance()  # validates --action-noise
+        disturbance = self.disturbance()  # validates --action-noise, --takeover's folder
+        if isinstance(disturbance, PolicyTakeover):
+            disturbance.check()  # a checkpoint that does not load fails here, not in every attempt
         chosen = [name for name, on in (("--action-noise", bool(self.action_noise)), ("--yaw-twists", self.yaw_twists),
                                         ("--missed-grasps", self.missed_grasps),
                                         ("--approach-drifts", self.approach_drifts),
@@ -182,8 +184,11 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     prelude = 0
     if config.prelude_tasks:
         prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
+    disturbance = config.disturbance()
+    if isinstance(disturbance, PolicyTakeover):  # the expert plans again from where the policy hands back
+        disturbance = replace(disturbance, expert=oracle)
     result = run_episode(
-        task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=config.disturbance(),
+        task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=disturbance,
         prelude=prelude, prelude_policy=OraclePolicy() if prelude else None,
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
@@ -260,7 +265,8 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                desc="collect", unit="ep", disable=not progress)
     pool = None
     if config.workers > 1:
-        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"))
+        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"),
+                                   initializer=_takeover_worker_init if config.takeover else None)
     try:
         while True:
             batch = _next_batch(config, done, state.failed)
@@ -286,7 +292,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
                         **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
                         **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
-                        **({TAKEOVER_KEY: Path(config.takeover).name} if config.takeover else {}),
+                        **({TAKEOVER_KEY: Path(config.takeover).resolve().name} if config.takeover else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                         **({PRELUDE_KEY: result["prelude"]} if result.get("prelude") else {}),
                     },
@@ -323,6 +329,12 @@ def _next_batch(config: CollectConfig, done: dict[str, set[int]], failed: dict[s
     for rank in range(max((len(p) for p in per_task), default=0)):
         batch.extend(p[rank] for p in per_task if rank < len(p))
     return batch
+
+
+def _takeover_worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)  # each worker's learned policy (--takeover) on one core: threads would fight
 
 
 def _run_ordered(config: CollectConfig, batch: list[tuple[str, int]], pool):

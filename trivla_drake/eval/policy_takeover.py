@@ -13,14 +13,15 @@ resume_descent=True)`) drives to the end.
 The recorded action of every frame is the expert's: what it would do in the state the policy
 reached. The policy's steps are marked disturbed (`Trajectory.perturbed`), so training keeps the
 expert's own action as a label for those frames (row 0 of their chunks) and masks the later rows
-(`trivla_drake.data.samples`). After the handback the data shows the expert correcting from where
-the policy left the hand: above the block, it aligns across and turns at that height and then goes
-down; lower, it rises to the leg above the block first.
+(`trivla_drake.data.samples`). At the handback the expert plans the task again from the scene as
+it is (`OraclePolicy.replan`: the policy may have moved a block), and with `resume_descent` it picks
+its leg from where the hand is: in the funnel above the grasp it aligns across and turns at that
+height and then goes down; lower or farther off, it rises and moves across into the funnel first.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,9 @@ class PolicyTakeover:
     steps: tuple[int, int] = (30, 150)
     # Actions of each chunk the policy executes before it predicts again (None: the whole chunk).
     execute_steps: int | None = None
+    # The expert of the episode (an OraclePolicy): told to `replan()` from the scene as it is when the
+    # policy hands back, since the policy may have moved a block. None: nobody is told.
+    expert: object = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (Path(self.checkpoint) / "config.json").is_file():
@@ -58,6 +62,14 @@ class PolicyTakeover:
         low, high = self.steps
         if not 1 <= low <= high:
             raise ValueError(f"takeover steps range must be 1 <= low <= high, got {self.steps}")
+
+    def check(self) -> None:
+        """Loads the checkpoint now (once per process), so that a bad one fails before any episode
+        runs, with an error naming --takeover."""
+        try:
+            _harness_policy(self.checkpoint, self.execute_steps)
+        except Exception as error:  # noqa: BLE001 - any load failure is this flag's
+            raise ValueError(f"--takeover {self.checkpoint}: {error}") from error
 
     def start(self, rng: np.random.Generator) -> "PolicyTakeoverState":
         """A fresh takeover for one episode, drawing from `rng` (the model is loaded once per process)."""
@@ -95,9 +107,11 @@ class PolicyTakeoverState:
             return self._hand_back("close", action)
         self.driven += 1
         if self.driven >= self.steps:
-            self.handed_back, self.reason = True, "steps"
+            self._hand_back("steps", applied)
         return applied, True
 
     def _hand_back(self, reason: str, action: np.ndarray) -> tuple[np.ndarray, bool]:
         self.handed_back, self.reason = True, reason
+        if self.settings.expert is not None:
+            self.settings.expert.replan()
         return action, False

@@ -61,12 +61,15 @@ class OraclePolicy:
         (a missed grasp forced on it, eval/missed_grasps.py), plan again from the scene as it is:
         open, rise, then the task's plan (which grasps again). The expert never does that itself,
         so without a disturbance it changes nothing.
-        `resume_descent`: on the leg to above a grasp (the leg before a `Waypoint.turn_first` leg), a
-        hand that is already lower (RESUME_BELOW_M), near the grasp (RESUME_RADIUS_M) and still above
-        it (RESUME_ABOVE_M) goes on with the leg down instead of rising back, e.g. after a learned
-        policy drove it there (eval/policy_takeover.py); with `align_first` it first moves across and
-        turns at that height. Undisturbed, the hand reaches each leg's pose from above, so it changes
-        nothing."""
+        `resume_descent`: which of the two legs to a grasp (to above it, then the `Waypoint.turn_first` leg
+        down) applies is decided from where the commanded hand is now, at every step, for hands that
+        someone else drove (eval/policy_takeover.py, which also calls `replan()` when it hands back). A
+        hand in the funnel above the grasp (lower than the leg above by RESUME_BELOW_M, within
+        RESUME_RADIUS_M sideways, at least RESUME_ABOVE_M above the grasp) goes on with the leg down;
+        with `align_first` it first moves across and turns at that height. A hand on the leg down
+        that is neither aligned (ALIGN_FIRST_M, TURN_FIRST_RAD) nor in that funnel goes back to the
+        leg above: it rises (and moves across) until it is in the funnel. Undisturbed, the hand
+        reaches the leg above from above and comes down aligned, so it changes nothing."""
         if isinstance(detours, bool) or not isinstance(detours, (int, np.integer)) or detours < 0:
             raise ValueError(f"detours must be an integer >= 0, got {detours!r}")
         self._space = action_space
@@ -75,6 +78,7 @@ class OraclePolicy:
         self._regrasp = bool(regrasp)
         self._align_first = bool(align_first)
         self._resume_descent = bool(resume_descent)
+        self._replan = False
         self._rng = np.random.default_rng(0)
         self._plan: list[Waypoint] | None = None
         self._index = 0
@@ -89,6 +93,11 @@ class OraclePolicy:
         self._waited = 0
         self._leg_steps = 0
         self._rng = np.random.default_rng(seed)
+
+    def replan(self) -> None:
+        """The next `act` plans the task again from the scene as it is then (no retreat, no detours): for
+        an expert taking over a hand someone else drove, e.g. after a learned policy moved a block."""
+        self._replan = True
 
     @property
     def plan(self) -> list[Waypoint] | None:
@@ -106,12 +115,16 @@ class OraclePolicy:
         if self._plan is None:
             self._plan = motions.retreat(scene, closed) + self._detour_plan(scene, instance) \
                 + get_task(instance.task).plan(instance.params, scene)
+        elif self._replan:
+            self._plan = get_task(instance.task).plan(instance.params, scene)
+            self._index, self._waited, self._leg_steps = 0, 0, 0
         elif self._regrasp and closed and self._gripper > 0.0:
             # Closed by someone else: whatever it grasped or not, open, rise and go on from the scene as it is.
             self._plan = motions.retreat(scene, closed) + get_task(instance.task).plan(instance.params, scene)
             self._index, self._waited, self._leg_steps = 0, 0, 0
+        self._replan = False
         if self._resume_descent:
-            self._skip_to_descent(X_cmd)
+            self._choose_grasp_leg(X_cmd)
         dt = self._space.dt
         while self._index < len(self._plan):
             wp = self._plan[self._index]
@@ -137,16 +150,23 @@ class OraclePolicy:
         hold[6] = self._gripper
         return hold
 
-    def _skip_to_descent(self, X_cmd: np.ndarray) -> None:
-        """`resume_descent`: go on with the leg down when the hand is already low near its grasp."""
-        if self._index + 1 >= len(self._plan) or not self._plan[self._index + 1].turn_first:
+    def _choose_grasp_leg(self, X_cmd: np.ndarray) -> None:
+        """`resume_descent`: the leg above a grasp or the leg down to it, from where the hand is now."""
+        on_down = self._plan[self._index].turn_first if self._index < len(self._plan) else False
+        above_index = self._index - 1 if on_down else self._index
+        if above_index < 0 or above_index + 1 >= len(self._plan) or not self._plan[above_index + 1].turn_first:
             return
-        above, down = self._plan[self._index].pose[:3, 3], self._plan[self._index + 1].pose[:3, 3]
+        above, down = self._plan[above_index].pose, self._plan[above_index + 1].pose
         p = X_cmd[:3, 3]
-        if (p[2] < above[2] - RESUME_BELOW_M and p[2] > down[2] + RESUME_ABOVE_M
-                and float(np.linalg.norm(p[:2] - down[:2])) < RESUME_RADIUS_M):
-            self._index += 1
-            self._waited, self._leg_steps = 0, 0
+        in_funnel = (p[2] < above[2, 3] - RESUME_BELOW_M and p[2] > down[2, 3] + RESUME_ABOVE_M
+                     and float(np.linalg.norm(p[:2] - down[:2, 3])) < RESUME_RADIUS_M)
+        if not on_down and in_funnel:
+            self._index, self._waited, self._leg_steps = above_index + 1, 0, 0
+        elif on_down and not in_funnel:
+            across = float(np.linalg.norm(p[:2] - down[:2, 3]))
+            turned = float(np.linalg.norm(log_so3(down[:3, :3] @ X_cmd[:3, :3].T)))
+            if across > ALIGN_FIRST_M or turned > TURN_FIRST_RAD:
+                self._index, self._waited, self._leg_steps = above_index, 0, 0
 
     def _detour_plan(self, scene, instance) -> list[Waypoint]:
         if not self._detours:
