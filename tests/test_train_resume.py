@@ -84,7 +84,7 @@ def test_existing_runs_need_resume_and_the_same_settings(data, tmp_path):
     assert [step for step, _ in ckpt.list_checkpoints(tmp_path / "run")] == [6]  # older ones pruned
     with pytest.raises(ValueError, match="already holds a training run"):
         train(_config("policy", tmp_path / "run", data))
-    with pytest.raises(ValueError, match="lr was 0.001"):
+    with pytest.raises(ValueError, match=r"lr \(--lr\) was 0.001"):
         train(_config("policy", tmp_path / "run", data, resume=True).__class__(
             **{**_config("policy", tmp_path / "run", data, resume=True).to_dict(), "lr": 5e-4}))
     more = train(_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).__class__(

@@ -70,7 +70,7 @@ def test_resume_may_extend_steps_but_not_change_what_is_learned():
     saved = TrainConfig(stage="policy", out="o", data="d", preset="tiny").resolved()
     check_resume_compatible(saved, TrainConfig(stage="policy", out="o", data="d", preset="tiny", steps=99,
                                                resume=True).resolved())
-    with pytest.raises(ValueError, match="lr was"):
+    with pytest.raises(ValueError, match=r"lr \(--lr\) was"):
         check_resume_compatible(saved, TrainConfig(stage="policy", out="o", data="d", preset="tiny",
                                                    lr=1.0).resolved())
 
