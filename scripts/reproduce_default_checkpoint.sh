@@ -448,7 +448,10 @@ fi
 #     (collect --takeover: 30-150 steps, or until it commands the hand closed), then the oracle takes over
 #     from where it left the hand; 40 more each of lift, stack and place in bowl and 20 more each of rotate
 #     left / right and unstack, added to a copy of MORE_DATA (1140 episodes); the shipped model followed on
-#     them as step 23's ema2 run (its matched control); export, six seeds, grasps.
+#     them as step 23's ema2 run (its matched control); export, six seeds, grasps. Round 2: that model drives
+#     the same numbers of takeover episodes more (1320 episodes; the data of round 1 came from the first
+#     version of OraclePolicy's resume_descent rule, commit 0e7f20b; round 2's from the current one), the
+#     shipped model followed on them the same way; export, six seeds, grasps.
 if [[ "${TAKEOVER:-0}" == 1 ]]; then
   TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
   [[ -d "$TAKEOVER_DATA" ]] || cp -r "$MORE_DATA" "$TAKEOVER_DATA"
@@ -465,4 +468,18 @@ if [[ "${TAKEOVER:-0}" == 1 ]]; then
         --json > "results/policy_takeover/takeover_seed$seed.json"
   done
   trivla-drake probe --checkpoint "$RUNS/takeover_export" --grasp-episodes 6 > results/policy_takeover/grasps_takeover.md
+  TAKEOVER2_DATA=${TAKEOVER2_DATA:-$DATA-takeover2}
+  [[ -d "$TAKEOVER2_DATA" ]] || cp -r "$TAKEOVER_DATA" "$TAKEOVER2_DATA"
+  trivla-drake collect --out "$TAKEOVER2_DATA" --episodes-per-task 160 --tasks lift_block,stack_block,place_in_bowl \
+      --takeover "$RUNS/takeover_export" --workers 2
+  trivla-drake collect --out "$TAKEOVER2_DATA" --episodes-per-task 120 \
+      --tasks rotate_block_left,rotate_block_right,unstack_block --takeover "$RUNS/takeover_export" --workers 2
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TAKEOVER2_DATA" --out "$RUNS/takeover2_follow" --init models/trivla_cpu \
+      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/takeover2_follow/final" --out "$RUNS/takeover2_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/takeover2_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/policy_takeover/takeover2_seed$seed.json"
+  done
+  trivla-drake probe --checkpoint "$RUNS/takeover2_export" --grasp-episodes 6 > results/policy_takeover/grasps_takeover2.md
 fi
