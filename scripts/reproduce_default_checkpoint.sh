@@ -453,33 +453,26 @@ fi
 #     version of OraclePolicy's resume_descent rule, commit 0e7f20b; round 2's from the current one), the
 #     shipped model followed on them the same way; export, six seeds, grasps.
 if [[ "${TAKEOVER:-0}" == 1 ]]; then
-  TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
-  [[ -d "$TAKEOVER_DATA" ]] || cp -r "$MORE_DATA" "$TAKEOVER_DATA"
-  trivla-drake collect --out "$TAKEOVER_DATA" --episodes-per-task 120 --tasks lift_block,stack_block,place_in_bowl \
-      --takeover models/trivla_cpu --workers 2
-  trivla-drake collect --out "$TAKEOVER_DATA" --episodes-per-task 100 \
-      --tasks rotate_block_left,rotate_block_right,unstack_block --takeover models/trivla_cpu --workers 2
   mkdir -p results/policy_takeover
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TAKEOVER_DATA" --out "$RUNS/takeover_follow" --init models/trivla_cpu \
-      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
-  trivla-drake export "$RUNS/takeover_follow/final" --out "$RUNS/takeover_export" --drop-unused-llm-layers
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/takeover_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
-        --json > "results/policy_takeover/takeover_seed$seed.json"
-  done
-  trivla-drake probe --checkpoint "$RUNS/takeover_export" --grasp-episodes 6 > results/policy_takeover/grasps_takeover.md
-  TAKEOVER2_DATA=${TAKEOVER2_DATA:-$DATA-takeover2}
-  [[ -d "$TAKEOVER2_DATA" ]] || cp -r "$TAKEOVER_DATA" "$TAKEOVER2_DATA"
-  trivla-drake collect --out "$TAKEOVER2_DATA" --episodes-per-task 160 --tasks lift_block,stack_block,place_in_bowl \
-      --takeover "$RUNS/takeover_export" --workers 2
-  trivla-drake collect --out "$TAKEOVER2_DATA" --episodes-per-task 120 \
-      --tasks rotate_block_left,rotate_block_right,unstack_block --takeover "$RUNS/takeover_export" --workers 2
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$TAKEOVER2_DATA" --out "$RUNS/takeover2_follow" --init models/trivla_cpu \
-      --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
-  trivla-drake export "$RUNS/takeover2_follow/final" --out "$RUNS/takeover2_export" --drop-unused-llm-layers
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/takeover2_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
-        --json > "results/policy_takeover/takeover2_seed$seed.json"
-  done
-  trivla-drake probe --checkpoint "$RUNS/takeover2_export" --grasp-episodes 6 > results/policy_takeover/grasps_takeover2.md
+  # takeover_round NAME FROM_DATA DATA DRIVER GRASP_EPISODES OTHER_EPISODES: DATA (a copy of FROM_DATA) gains
+  # takeover episodes driven by DRIVER up to those totals per task, then the shipped model follows on it.
+  takeover_round() {
+    local name=$1 from=$2 data=$3 driver=$4
+    [[ -d "$data" ]] || cp -r "$from" "$data"
+    trivla-drake collect --out "$data" --episodes-per-task "$5" --tasks lift_block,stack_block,place_in_bowl \
+        --takeover "$driver" --workers 2
+    trivla-drake collect --out "$data" --episodes-per-task "$6" \
+        --tasks rotate_block_left,rotate_block_right,unstack_block --takeover "$driver" --workers 2
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
+        --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
+    trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
+    for seed in 1000 1001 1002 1003 1004 1005; do
+      trivla-drake evaluate --policy "$RUNS/${name}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+          --json > "results/policy_takeover/${name}_seed$seed.json"
+    done
+    trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/policy_takeover/grasps_$name.md"
+  }
+  TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
+  takeover_round takeover "$MORE_DATA" "$TAKEOVER_DATA" models/trivla_cpu 120 100
+  takeover_round takeover2 "$TAKEOVER_DATA" "${TAKEOVER2_DATA:-$DATA-takeover2}" "$RUNS/takeover_export" 160 120
 fi

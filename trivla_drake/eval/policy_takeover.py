@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+_POLICY_READS = frozenset({"static_rgb", "wrist_rgb", "state", "instruction"})
+
 # One model per checkpoint folder and process: collection workers run many episodes each.
 _MODELS: dict[str, object] = {}
 
@@ -95,10 +97,10 @@ class PolicyTakeoverState:
     def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
         if self.handed_back:
             return action, False
-        if observation is None or not {"static_rgb", "wrist_rgb", "state", "instruction"} <= set(observation):
-            raise ValueError("PolicyTakeover needs observation['static_rgb'], ['wrist_rgb'], ['state'] and "
-                             "['instruction'] (collect with cameras)")
-        if self.driven == 0:
+        if self.driven == 0 and not self._queue:  # the episode's first step: checked once
+            if observation is None or not _POLICY_READS <= observation.keys():
+                raise ValueError("PolicyTakeover needs observation['static_rgb'], ['wrist_rgb'], ['state'] and "
+                                 "['instruction'] (collect with cameras)")
             self.policy.reset(str(observation["instruction"]), self._policy_seed)
         if not self._queue:
             self._queue = list(np.asarray(self.policy.act(observation), dtype=np.float64))

@@ -158,12 +158,11 @@ class OraclePolicy:
             return
         above, down = self._plan[above_index].pose, self._plan[above_index + 1].pose
         p = X_cmd[:3, 3]
-        in_funnel = (p[2] < above[2, 3] - RESUME_BELOW_M and p[2] > down[2, 3] + RESUME_ABOVE_M
-                     and float(np.linalg.norm(p[:2] - down[:2, 3])) < RESUME_RADIUS_M)
+        across = float(np.linalg.norm(p[:2] - down[:2, 3]))
+        in_funnel = down[2, 3] + RESUME_ABOVE_M < p[2] < above[2, 3] - RESUME_BELOW_M and across < RESUME_RADIUS_M
         if not on_down and in_funnel:
             self._index, self._waited, self._leg_steps = above_index + 1, 0, 0
         elif on_down and not in_funnel:
-            across = float(np.linalg.norm(p[:2] - down[:2, 3]))
             turned = float(np.linalg.norm(log_so3(down[:3, :3] @ X_cmd[:3, :3].T)))
             if across > ALIGN_FIRST_M or turned > TURN_FIRST_RAD:
                 self._index, self._waited, self._leg_steps = above_index, 0, 0
