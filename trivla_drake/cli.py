@@ -339,12 +339,17 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Drake's parser warnings (ROS-only URDF tags) are noise for a user; -v shows them.
     logging.getLogger("drake").setLevel(logging.INFO if args.verbose else logging.ERROR)
-    from trivla_drake.station.scenario import ScenarioError
-
     try:
         return args.run(args)
-    except (ScenarioError, ValueError, FileNotFoundError) as error:
+    except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors
         print(f"trivla-drake {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as error:
+        # Parsing and `bench --model`, `train`, `export` need only torch; the simulation commands need Drake.
+        if error.name != "pydrake" and not (error.name or "").startswith("pydrake."):
+            raise
+        print(f"trivla-drake {args.command}: error: this command needs Drake (pip install drake): {error}",
+              file=sys.stderr)
         return 2
 
 

@@ -21,9 +21,9 @@ from trivla_drake.tasks.suite import TASK_NAMES
 
 def _user_errors():
     from trivla_drake.data.lerobot import NotADatasetError
-    from trivla_drake.station.scenario import ScenarioError
 
-    return (ValueError, NotADatasetError, ScenarioError, FileNotFoundError, NotImplementedError)
+    # ScenarioError is a ValueError (naming it here would import Drake, which `main` reports missing).
+    return (ValueError, NotADatasetError, FileNotFoundError, NotImplementedError)
 
 
 def _task_list(text: str) -> list[str]:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trivla_drake.systems.action_executor import GRIPPER_CLOSE, GRIPPER_OPEN
+from trivla_drake.action import GRIPPER_CLOSE, GRIPPER_OPEN
 from trivla_drake.tasks.scene import BLOCK_HALF, SceneState, fold_quarter_turn, tcp_pose
 
 # Height of the tcp when moving between places [m]: an open hand clears every block and fixture.
