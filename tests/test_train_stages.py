@@ -146,6 +146,8 @@ def test_ablation_without_system2_keeps_system3_and_caches_other_features(runs, 
     vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
     assert _same(_weights(model, "dynamics."), _weights(vlm, "dynamics."))
     assert summary["feature_cache"] != runs["policy"]["feature_cache"]
+    # The full model's shards hold these System 3 features: the arm reads them instead of computing.
+    assert summary["feature_shards_borrowed"] == 3 and summary["feature_shards_computed"] == 0
     with pytest.raises(ValueError, match="cannot be switched back on"):
         train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "back_on"), steps=2,
                           init=summary["final_checkpoint"], **runs["common"]))
@@ -439,3 +441,36 @@ def test_a_fresh_vlm_run_builds_every_llm_layer_of_a_preset_that_drops_them(tmp_
     for stage, drops in (("vlm", False), ("policy", True)):
         config = TrainConfig(stage=stage, preset="paper", data=str(tmp_path), out=str(tmp_path / stage)).resolved()
         assert fresh_model_config(config).vision_language.drop_unused_llm_layers is drops, stage
+
+
+def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borrows(runs, tmp_path):
+    from trivla_drake.train.datasets import PolicyFeatureDataset
+    from trivla_drake.train.distributed import DistEnv
+    from trivla_drake.train.features import dynamics_feature_key, ensure_feature_cache, feature_cache_key
+    from trivla_drake.train.trainer import apply_ablations
+
+    full = load_checkpoint(runs["vlm"]["final_checkpoint"]).eval()
+    arm = apply_ablations(full, False, True, "test")
+    reader = LeRobotReader(runs["data"])
+    config = TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "o"), **runs["common"])
+    assert dynamics_feature_key(arm, config) == dynamics_feature_key(full, config)
+    assert feature_cache_key(arm, config) != feature_cache_key(full, config)
+    lent, summary = ensure_feature_cache(arm, reader, [0, 1, 2], config, DistEnv(), progress=False)
+    assert summary["feature_shards_borrowed"] == 3 and summary["feature_shards_computed"] == 0
+    assert all(path.parent.name == feature_cache_key(full, config) for path in lent.values())
+    # Computed afresh in a cache of its own, the arm's System 3 features equal the borrowed ones.
+    alone = dataclasses.replace(config, cache_dir=str(tmp_path / "own_cache"))
+    own, summary = ensure_feature_cache(arm, reader, [0, 1, 2], alone, DistEnv(), progress=False)
+    assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 3
+    kwargs = dict(feature_stride=1, action_horizon=arm.config.policy.action_horizon, use_system2=False, use_system3=True)
+    a, b = PolicyFeatureDataset(reader, [0, 1, 2], lent, **kwargs), PolicyFeatureDataset(reader, [0, 1, 2], own, **kwargs)
+    for i in (0, len(a) - 1):
+        assert "q_vl" not in a[i]
+        torch.testing.assert_close(a[i]["dynamics_wrist"], b[i]["dynamics_wrist"])
+        torch.testing.assert_close(a[i]["dynamics_static"], b[i]["dynamics_static"])
+    # Another System 3 borrows nothing.
+    other = apply_ablations(load_checkpoint(runs["video"]["final_checkpoint"]).eval(), False, True, "test")
+    with torch.no_grad():
+        next(other.dynamics.parameters()).add_(1e-3)
+    _, summary = ensure_feature_cache(other, reader, [0], config, DistEnv(), progress=False)
+    assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 1

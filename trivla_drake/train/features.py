@@ -10,6 +10,12 @@ dtype, noise seed, batch size), so another model or setting never reads stale fe
 fingerprint hashes the episode's content. Shards are written atomically (temporary file renamed),
 so an interrupted caching run resumes with the episodes it did not finish; under torchrun the missing
 episodes are split across ranks.
+
+An ablation arm without System 2 (`--no-system2`) has a key of its own, but its System 3 features are
+those of any model with the same System 3 weights and settings: System 2 draws no noise, so System 3's
+outputs do not depend on it. Each folder's cache_info.json records `dynamics_key` (System 3's weights
+and settings alone), and such an arm reads the System 3 tensors of a full model's shards with its
+`dynamics_key` instead of computing them again (`feature_shards_borrowed` in the summary).
 """
 
 from __future__ import annotations
@@ -45,10 +51,8 @@ def hash_module_weights(module: torch.nn.Module | None, hasher: Any) -> None:
         hasher.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")  # 0-dim too
 
 
-def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
-    """Hash of System 2/3's weights and of every setting the cached features depend on."""
-    hasher = hashlib.sha256()
-    settings = {
+def _feature_settings(model: TriVLA, config: TrainConfig) -> dict[str, Any]:
+    return {
         "format": FORMAT_VERSION,
         "image_size": model.image_size,
         "feature_stride": config.feature_stride,
@@ -62,10 +66,56 @@ def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
         "dynamics_feature_noise": None if model.dynamics is None else (
             model.config.dynamics.feature_noise, model.config.dynamics.feature_noise_seed),
     }
-    hasher.update(json.dumps(settings, sort_keys=True).encode())
+
+
+def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
+    """Hash of System 2/3's weights and of every setting the cached features depend on."""
+    hasher = hashlib.sha256()
+    hasher.update(json.dumps(_feature_settings(model, config), sort_keys=True).encode())
     hash_module_weights(model.vision_language, hasher)
     hash_module_weights(model.dynamics, hasher)
     return hasher.hexdigest()[:20]
+
+
+def dynamics_feature_key(model: TriVLA, config: TrainConfig) -> str | None:
+    """Hash of System 3's weights and of the settings its cached features depend on (None without
+    System 3): equal for two models whose System 3 features are equal, with or without System 2."""
+    if model.dynamics is None:
+        return None
+    settings = {k: v for k, v in _feature_settings(model, config).items() if k != "system2"}
+    hasher = hashlib.sha256(b"dynamics-features;")
+    hasher.update(json.dumps(settings, sort_keys=True).encode())
+    hash_module_weights(model.dynamics, hasher)
+    return hasher.hexdigest()[:20]
+
+
+def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
+    """Cache folders of models with System 2 and this System 3 (their shards hold its features)."""
+    found = []
+    for info_path in sorted(features_root.glob("*/cache_info.json")):
+        if info_path.parent == own:
+            continue
+        try:
+            info = json.loads(info_path.read_text())
+        except (OSError, ValueError):
+            continue
+        if info.get("dynamics_key") == dynamics_key and info.get("system2") and info.get("system3"):
+            found.append(info_path.parent)
+    return found
+
+
+def _borrow_shards(shards: dict[int, Path], missing: list[int], lenders: list[Path]) -> tuple[list[int], int]:
+    """Points the missing episodes' shards at valid lender shards of the same episode (in place);
+    returns the episodes still missing and how many were borrowed."""
+    still = []
+    for episode in missing:
+        lent = next((folder / shards[episode].name for folder in lenders
+                     if _shard_is_valid(folder / shards[episode].name)), None)
+        if lent is None:
+            still.append(episode)
+        else:
+            shards[episode] = lent
+    return still, len(missing) - len(still)
 
 
 def _episode_seed(seed: int, fingerprint: str) -> int:
@@ -152,7 +202,12 @@ def ensure_feature_cache(
     root = Path(config.cache_dir) / "features" / key
     shards = {e: root / f"{episode_fingerprint(reader, e)}.safetensors" for e in episodes}
     missing = [e for e in episodes if not (shards[e].is_file() and _shard_is_valid(shards[e]))]
+    dynamics_key = dynamics_feature_key(model, config)
+    borrowed = 0
+    if model.vision_language is None and dynamics_key is not None and missing:
+        missing, borrowed = _borrow_shards(shards, missing, _lenders(root.parent, dynamics_key, root))
     missing = env.broadcast_object(missing)  # rank 0's list, so that every rank splits the same work
+    shards = env.broadcast_object(shards)  # and the same lent shards
     mine = missing[env.rank :: env.world_size]
     if env.is_main:
         root.mkdir(parents=True, exist_ok=True)
@@ -161,6 +216,7 @@ def ensure_feature_cache(
             "preset": model.config.preset,
             "system2": model.vision_language is not None,
             "system3": model.dynamics is not None,
+            "dynamics_key": dynamics_key,
             "feature_stride": config.feature_stride,
             "feature_dtype": config.feature_dtype,
             "feature_seed": config.feature_seed,
@@ -180,13 +236,14 @@ def ensure_feature_cache(
         bar.close()
         model.train(was_training)
     env.barrier()
-    sample = episodes[:50]
+    sample = [e for e in episodes if shards[e].parent == root][:50] or episodes[:50]  # lent shards hold Q_vl too
     total_bytes = sum(shards[e].stat().st_size for e in sample)
     cached_frames = sum(-(-int(reader.episodes[e]["length"]) // config.feature_stride) for e in sample)
     summary = {
         "feature_cache": str(root),
         "feature_shards_computed": len(missing),
-        "feature_shards_reused": len(episodes) - len(missing),
+        "feature_shards_reused": len(episodes) - len(missing) - borrowed,
+        "feature_shards_borrowed": borrowed,
         "feature_cache_bytes_per_episode": total_bytes / max(1, len(sample)),
         "feature_cache_bytes_per_frame": total_bytes / max(1, cached_frames),
     }
