@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -468,9 +469,20 @@ def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borr
         assert "q_vl" not in a[i]
         torch.testing.assert_close(a[i]["dynamics_wrist"], b[i]["dynamics_wrist"])
         torch.testing.assert_close(a[i]["dynamics_static"], b[i]["dynamics_static"])
-    # Another System 3 borrows nothing.
+    assert summary["feature_cache_lenders"] == [] and summary["feature_cache_bytes_per_episode"] > 0
+    # Another System 3 (weights or config), or another stride, borrows nothing.
     other = apply_ablations(load_checkpoint(runs["video"]["final_checkpoint"]).eval(), False, True, "test")
     with torch.no_grad():
         next(other.dynamics.parameters()).add_(1e-3)
-    _, summary = ensure_feature_cache(other, reader, [0], config, DistEnv(), progress=False)
-    assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 1
+    retuned = apply_ablations(full, False, True, "test")
+    retuned.config = dataclasses.replace(
+        retuned.config, dynamics=dataclasses.replace(retuned.config.dynamics, sigma_max=retuned.config.dynamics.sigma_max / 2))
+    for model, setting in ((other, config), (retuned, config), (arm, dataclasses.replace(config, feature_stride=2))):
+        assert dynamics_feature_key(model, setting) != dynamics_feature_key(full, config)
+        setting = dataclasses.replace(setting, cache_dir=str(tmp_path / "lenders"))
+        lender = tmp_path / "lenders" / "features"
+        lender.mkdir(parents=True, exist_ok=True)
+        if not (lender / feature_cache_key(full, config)).exists():
+            (lender / feature_cache_key(full, config)).symlink_to(Path(lent[0]).parent)
+        _, summary = ensure_feature_cache(model, reader, [0], setting, DistEnv(), progress=False)
+        assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 1

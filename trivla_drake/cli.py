@@ -348,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         # Parsing and `bench --model`, `train`, `export` need only torch; the simulation commands need Drake.
         if error.name != "pydrake" and not (error.name or "").startswith("pydrake."):
             raise
-        print(f"trivla-drake {args.command}: error: this command needs Drake (pip install drake): {error}",
+        print(f"trivla-drake {args.command}: error: this command needs Drake (pip install drake), which is missing or too old: {error}",
               file=sys.stderr)
         return 2
 

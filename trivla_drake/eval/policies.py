@@ -5,7 +5,7 @@ A policy is reset with the instruction at the start of every (sub)task and then 
     policy.reset(instruction, seed)
     action = policy.act(observation)   # (7,) one step, or (k, 7) a chunk executed step by step
 
-Actions are defined in `trivla_drake.systems.action_executor` (relative end-effector pose change
+Actions are defined in `trivla_drake.action` (relative end-effector pose change
 in the world frame + gripper). The observation is the dict of `trivla_drake.eval.env` plus
 `instruction`; policies with `privileged = True` (the oracle) also get `privileged`:
 {"scene": SceneState, "task": TaskInstance}. `uses_images = False` lets the runner skip rendering.

@@ -12,6 +12,8 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any
 
+from trivla_drake.action import ACTION_NAMES
+
 PANDA_STATE_NAMES: tuple[str, ...] = tuple(
     [f"panda_joint{i}_position" for i in range(1, 8)]
     + ["panda_finger_joint1_position", "panda_finger_joint2_position"]
@@ -20,7 +22,7 @@ PANDA_STATE_NAMES: tuple[str, ...] = tuple(
 )
 """The default 18-D state: 7 arm + 2 finger positions, then 7 + 2 velocities."""
 
-EE_DELTA_ACTION_NAMES: tuple[str, ...] = ("dx", "dy", "dz", "drx", "dry", "drz", "gripper")
+EE_DELTA_ACTION_NAMES: tuple[str, ...] = ACTION_NAMES
 """The default 7-D action: relative end-effector pose change, then a gripper command."""
 
 

@@ -72,7 +72,7 @@ class ActionChunkExecutor(LeafSystem):
     Outputs: `ee_target` (RigidTransform of `panda_hand_tcp`, world frame [m]), `gripper_target`
     (1-vector, finger distance [m]), `action` (7-vector, the action applied at the last tick).
     Every 1 / control_rate_hz seconds (36 Hz), at offset_s + n / control_rate_hz, it applies one
-    action (see action_executor.py for the action space); with no chunk covering the time, it holds
+    action (see trivla_drake/action.py for the action space); with no chunk covering the time, it holds
     the commanded pose.
     """
 

@@ -5,8 +5,9 @@ Layout: CACHE/features/<key>/<episode fingerprint>.safetensors, one shard per ep
     dynamics_static  (N, T+1, C, H_p, W_p)    System 3's F_p of the static view
     dynamics_wrist   (N, T+1, C, H_p, W_p)    ... of the wrist view
     frame_index      (N,)                     the episode frames (every feature_stride-th)
-<key> hashes the System 2/3 weights and every setting the features depend on (image size, stride,
-dtype, noise seed, batch size), so another model or setting never reads stale features; the episode
+<key> hashes the System 2/3 weights and configs and every training setting the features depend on
+(image size, stride, dtype, noise seed, batch size, cameras), so another model or setting never reads
+stale features (`FeatureKeys`); the episode
 fingerprint hashes the episode's content. Shards are written atomically (temporary file renamed),
 so an interrupted caching run resumes with the episodes it did not finish; under torchrun the missing
 episodes are split across ranks.
@@ -15,11 +16,15 @@ An ablation arm without System 2 (`--no-system2`) has a key of its own, but its 
 those of any model with the same System 3 weights and settings: System 2 draws no noise, so System 3's
 outputs do not depend on it. Each folder's cache_info.json records `dynamics_key` (System 3's weights
 and settings alone), and such an arm reads the System 3 tensors of a full model's shards with its
-`dynamics_key` instead of computing them again (`feature_shards_borrowed` in the summary).
+`dynamics_key` instead of computing them again (`feature_shards_borrowed` in the summary; the lending
+folders are listed in the arm's cache_info.json and summary: delete them and the arm recomputes).
+A folder lends once a full model's policy stage has run on it with this code, which writes its
+`dynamics_key`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -36,7 +41,7 @@ from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.datasets import episode_fingerprint, resize_frames
 from trivla_drake.train.distributed import DistEnv
 
-FORMAT_VERSION = 2  # 2: System 3 features with the config's feature_noise
+FORMAT_VERSION = 3  # 2: System 3 features with the config's feature_noise; 3: the System 2/3 configs in the keys
 _DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32}
 
 
@@ -51,42 +56,59 @@ def hash_module_weights(module: torch.nn.Module | None, hasher: Any) -> None:
         hasher.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")  # 0-dim too
 
 
-def _feature_settings(model: TriVLA, config: TrainConfig) -> dict[str, Any]:
-    return {
-        "format": FORMAT_VERSION,
-        "image_size": model.image_size,
-        "feature_stride": config.feature_stride,
-        "feature_dtype": config.feature_dtype,
-        "feature_seed": config.feature_seed,
-        "feature_batch_size": config.feature_batch_size,
-        "static_camera": config.static_camera,
-        "wrist_camera": config.wrist_camera,
-        "system2": model.vision_language is not None,
-        "system3": model.dynamics is not None,
-        "dynamics_feature_noise": None if model.dynamics is None else (
-            model.config.dynamics.feature_noise, model.config.dynamics.feature_noise_seed),
-    }
+def _weights_digest(module: torch.nn.Module | None) -> str:
+    hasher = hashlib.sha256()
+    hash_module_weights(module, hasher)
+    return hasher.hexdigest()
+
+
+def _section(config: Any) -> dict[str, Any] | None:
+    """A System 2/3 config as JSON-able settings, without the local paths it was loaded from."""
+    if config is None:
+        return None
+    return {k: v for k, v in dataclasses.asdict(config).items() if not k.endswith("_path")}
+
+
+def _hashed(settings: dict[str, Any], *digests: str) -> str:
+    hasher = hashlib.sha256(json.dumps({"format": FORMAT_VERSION, **settings}, sort_keys=True).encode())
+    for digest in digests:
+        hasher.update(digest.encode())
+    return hasher.hexdigest()[:20]
+
+
+class FeatureKeys:
+    """The cache keys of one model and setting, each system's weights hashed once.
+
+    `full`: System 2/3's weights and configs and every training setting the cached features depend on
+    (image size, stride, dtype, noise seed, batch size, cameras), so another model or setting never
+    reads stale features. `dynamics`: the same for System 3 alone (None without it), equal for two
+    models whose System 3 features are equal, with or without System 2."""
+
+    def __init__(self, model: TriVLA, config: TrainConfig):
+        common = {
+            "image_size": model.image_size,
+            "feature_stride": config.feature_stride,
+            "feature_dtype": config.feature_dtype,
+            "feature_seed": config.feature_seed,
+            "feature_batch_size": config.feature_batch_size,
+            "static_camera": config.static_camera,
+            "wrist_camera": config.wrist_camera,
+        }
+        vl = _section(model.config.vision_language if model.vision_language is not None else None)
+        dyn = _section(model.config.dynamics if model.dynamics is not None else None)
+        vl_weights, dyn_weights = _weights_digest(model.vision_language), _weights_digest(model.dynamics)
+        self.full = _hashed({**common, "vision_language": vl, "dynamics": dyn}, vl_weights, dyn_weights)
+        self.dynamics = None if dyn is None else _hashed({**common, "dynamics": dyn, "only": "dynamics"}, dyn_weights)
 
 
 def feature_cache_key(model: TriVLA, config: TrainConfig) -> str:
-    """Hash of System 2/3's weights and of every setting the cached features depend on."""
-    hasher = hashlib.sha256()
-    hasher.update(json.dumps(_feature_settings(model, config), sort_keys=True).encode())
-    hash_module_weights(model.vision_language, hasher)
-    hash_module_weights(model.dynamics, hasher)
-    return hasher.hexdigest()[:20]
+    """The folder name of `model`'s cached features under `config` (FeatureKeys.full)."""
+    return FeatureKeys(model, config).full
 
 
 def dynamics_feature_key(model: TriVLA, config: TrainConfig) -> str | None:
-    """Hash of System 3's weights and of the settings its cached features depend on (None without
-    System 3): equal for two models whose System 3 features are equal, with or without System 2."""
-    if model.dynamics is None:
-        return None
-    settings = {k: v for k, v in _feature_settings(model, config).items() if k != "system2"}
-    hasher = hashlib.sha256(b"dynamics-features;")
-    hasher.update(json.dumps(settings, sort_keys=True).encode())
-    hash_module_weights(model.dynamics, hasher)
-    return hasher.hexdigest()[:20]
+    """The key of `model`'s System 3 features alone (FeatureKeys.dynamics)."""
+    return FeatureKeys(model, config).dynamics
 
 
 def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
@@ -104,9 +126,9 @@ def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
     return found
 
 
-def _borrow_shards(shards: dict[int, Path], missing: list[int], lenders: list[Path]) -> tuple[list[int], int]:
+def _borrow_shards(shards: dict[int, Path], missing: list[int], lenders: list[Path]) -> list[int]:
     """Points the missing episodes' shards at valid lender shards of the same episode (in place);
-    returns the episodes still missing and how many were borrowed."""
+    returns the episodes still missing."""
     still = []
     for episode in missing:
         lent = next((folder / shards[episode].name for folder in lenders
@@ -115,7 +137,7 @@ def _borrow_shards(shards: dict[int, Path], missing: list[int], lenders: list[Pa
             still.append(episode)
         else:
             shards[episode] = lent
-    return still, len(missing) - len(still)
+    return still
 
 
 def _episode_seed(seed: int, fingerprint: str) -> int:
@@ -198,16 +220,19 @@ def ensure_feature_cache(
 
     if model.vision_language is None and model.dynamics is None:
         return {}, {"feature_cache": None}
-    key = feature_cache_key(model, config)
+    keys = FeatureKeys(model, config)
+    key, dynamics_key = keys.full, keys.dynamics
     root = Path(config.cache_dir) / "features" / key
     shards = {e: root / f"{episode_fingerprint(reader, e)}.safetensors" for e in episodes}
-    missing = [e for e in episodes if not (shards[e].is_file() and _shard_is_valid(shards[e]))]
-    dynamics_key = dynamics_feature_key(model, config)
-    borrowed = 0
-    if model.vision_language is None and dynamics_key is not None and missing:
-        missing, borrowed = _borrow_shards(shards, missing, _lenders(root.parent, dynamics_key, root))
-    missing = env.broadcast_object(missing)  # rank 0's list, so that every rank splits the same work
-    shards = env.broadcast_object(shards)  # and the same lent shards
+    missing: list[int] = []
+    if env.is_main:
+        missing = [e for e in episodes if not (shards[e].is_file() and _shard_is_valid(shards[e]))]
+        if model.vision_language is None and dynamics_key is not None and missing:
+            missing = _borrow_shards(shards, missing, _lenders(root.parent, dynamics_key, root))
+    # Rank 0's lists, so that every rank splits the same work and reads the same lent shards.
+    missing, shards = env.broadcast_object((missing, shards))
+    lenders = sorted({str(path.parent) for path in shards.values() if path.parent != root})
+    borrowed = sum(path.parent != root for path in shards.values())
     mine = missing[env.rank :: env.world_size]
     if env.is_main:
         root.mkdir(parents=True, exist_ok=True)
@@ -217,6 +242,7 @@ def ensure_feature_cache(
             "system2": model.vision_language is not None,
             "system3": model.dynamics is not None,
             "dynamics_key": dynamics_key,
+            "lenders": lenders,
             "feature_stride": config.feature_stride,
             "feature_dtype": config.feature_dtype,
             "feature_seed": config.feature_seed,
@@ -236,15 +262,16 @@ def ensure_feature_cache(
         bar.close()
         model.train(was_training)
     env.barrier()
-    sample = [e for e in episodes if shards[e].parent == root][:50] or episodes[:50]  # lent shards hold Q_vl too
+    sample = [e for e in episodes if shards[e].parent == root][:50]  # lent shards hold Q_vl too: not counted
     total_bytes = sum(shards[e].stat().st_size for e in sample)
     cached_frames = sum(-(-int(reader.episodes[e]["length"]) // config.feature_stride) for e in sample)
     summary = {
         "feature_cache": str(root),
+        "feature_cache_lenders": lenders,
         "feature_shards_computed": len(missing),
         "feature_shards_reused": len(episodes) - len(missing) - borrowed,
         "feature_shards_borrowed": borrowed,
-        "feature_cache_bytes_per_episode": total_bytes / max(1, len(sample)),
-        "feature_cache_bytes_per_frame": total_bytes / max(1, cached_frames),
+        "feature_cache_bytes_per_episode": total_bytes / len(sample) if sample else None,
+        "feature_cache_bytes_per_frame": total_bytes / cached_frames if sample else None,
     }
     return shards, summary
