@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 14 hours without the optional blocks;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 14 hours without the optional blocks, and 1 h more for step 26;
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -476,3 +476,24 @@ if [[ "${TAKEOVER:-0}" == 1 ]]; then
   takeover_round takeover "$MORE_DATA" "$TAKEOVER_DATA" models/trivla_cpu 120 100
   takeover_round takeover2 "$TAKEOVER_DATA" "${TAKEOVER2_DATA:-$DATA-takeover2}" "$RUNS/takeover_export" 160 120
 fi
+# 26. The shipped model's ablation arms (results/shipped_ablation/; the tables in results/ with them): the shipped
+#     model without System 2 (1+3) and without Systems 2 and 3 (1), each System 1 going on from the shipped one's
+#     weights for 2500 steps on MORE_DATA with the settings of step 22's run (without the grounding and the
+#     sub-goal offset, which read System 2). The 1+3 arm reads System 3's features from the shipped model's
+#     feature cache (borrowed, not computed). Exported, the tables again (the full model's evaluations are
+#     reused from results/evaluations/) and three more evaluation seeds of each arm.
+ARM_POLICY=(train --stage policy --data "$MORE_DATA" --init models/trivla_cpu --feature-stride 3 --lr 3e-4 \
+    --steps 2500 --seed 1 --ema-decay 0.999 --threads 2)
+trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s1" --no-system2 --no-system3
+trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s13" --no-system2
+trivla-drake export "$RUNS/arm_s1/final" --out "$RUNS/arm_s1_export"
+trivla-drake export "$RUNS/arm_s13/final" --out "$RUNS/arm_s13_export"
+trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
+    --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+mkdir -p results/shipped_ablation
+for arm in s1 s13; do
+  for seed in 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/arm_${arm}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+        --json > "results/shipped_ablation/arm_${arm}_seed$seed.json"
+  done
+done
