@@ -497,3 +497,24 @@ for arm in s1 s13; do
         --json > "results/shipped_ablation/arm_${arm}_seed$seed.json"
   done
 done
+# 27. Optional (SUBGOALS=1; results/subgoal_diagnostics/): System 1 given the oracle's grasp position, or its first
+#     prediction latched, as its sub-goal (two diagnostic scripts kept there); and the shipped model's grounding
+#     bound again on step 25's round-2 data (the policy's own approaches), then followed; export, six seeds, grasps.
+if [[ "${SUBGOALS:-0}" == 1 ]]; then
+  mkdir -p results/subgoal_diagnostics/rebind
+  for kind in true latched; do
+    "${PYTHON:-python}" "results/subgoal_diagnostics/${kind}_subgoal.py" 1000,1001,1002,1003,1004,1005 "$RUNS/${kind}_subgoal.json"
+  done
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "${TAKEOVER2_DATA:-$DATA-takeover2}" --out "$RUNS/rebind" \
+      --init models/trivla_cpu --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 \
+      --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "${TAKEOVER2_DATA:-$DATA-takeover2}" --out "$RUNS/rebind_follow" \
+      --init "$RUNS/rebind/final" --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/rebind_follow/final" --out "$RUNS/rebind_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/rebind_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/subgoal_diagnostics/rebind/rebind_seed$seed.json"
+  done
+  trivla-drake probe --checkpoint "$RUNS/rebind_export" --grasp-episodes 6 > results/subgoal_diagnostics/rebind/grasps_rebind.md
+fi
