@@ -503,7 +503,8 @@ done
 if [[ "${SUBGOALS:-0}" == 1 ]]; then
   mkdir -p results/subgoal_diagnostics/rebind
   for kind in true latched; do
-    "${PYTHON:-python}" "results/subgoal_diagnostics/${kind}_subgoal.py" 1000,1001,1002,1003,1004,1005 "$RUNS/${kind}_subgoal.json"
+    "${PYTHON:-python}" "results/subgoal_diagnostics/${kind}_subgoal.py" 1000,1001,1002,1003,1004,1005 \
+        results/subgoal_diagnostics
   done
   trivla-drake "${GROUNDED_POLICY[@]}" --data "${TAKEOVER2_DATA:-$DATA-takeover2}" --out "$RUNS/rebind" \
       --init models/trivla_cpu --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 \

@@ -1,6 +1,7 @@
-"""Diagnostic (outside the repository): the shipped model with its grounding's sub-goal position replaced,
+"""Diagnostic (results/subgoal_diagnostics/, run from the repository root): the shipped model with its grounding's sub-goal position replaced,
 in System 1's sub-goal offset path only, by the oracle's true grasp position (while no block is held)."""
 import json, sys
+from pathlib import Path
 import numpy as np, torch
 from trivla_drake.eval import evaluate as ev
 from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
@@ -42,10 +43,9 @@ torch.set_num_threads(1)
 policy = TrueSubgoal.from_checkpoint("models/trivla_cpu")
 policy.name = "trivla+true_subgoal"
 ev._POLICY_CACHE[("trivla", None, None, None)] = policy
-results = {}
 for s in seeds:
     r = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=["lift_block", "place_in_bowl", "stack_block", "rotate_block_left"],
                                   episodes=2, seed=s, workers=1), progress=False)
-    results[s] = r
+    Path(out).mkdir(parents=True, exist_ok=True)
+    (Path(out) / f"true_seed{s}.json").write_text(json.dumps(r, indent=1, default=str))
     print(s, r["average_success"], {k: v for k, v in r["tasks"].items()}, "overrides", policy.overrides, flush=True)
-json.dump(results, open(out, "w"), default=str)
