@@ -1,10 +1,8 @@
 """Diagnostic (results/subgoal_diagnostics/, run from the repository root): the shipped model with its grounding's sub-goal position latched:
 the first chunk's prediction is reused by System 1's sub-goal offset path until the policy first commands
 the gripper closed; after that, each chunk's own prediction (no privileged information)."""
-import json, sys
-from pathlib import Path
-import numpy as np, torch
-from trivla_drake.eval import evaluate as ev
+import sys
+import torch
 from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
 
 class LatchedSubgoal(TriVLAHarnessPolicy):
@@ -33,14 +31,8 @@ class LatchedSubgoal(TriVLAHarnessPolicy):
             self.closed = True
         return chunk
 
-seeds = [int(s) for s in sys.argv[1].split(",")]
-out = sys.argv[2]
-torch.set_num_threads(1)
-policy = LatchedSubgoal.from_checkpoint("models/trivla_cpu")
-ev._POLICY_CACHE[("trivla", None, None, None)] = policy
-for s in seeds:
-    r = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=["lift_block", "place_in_bowl", "stack_block", "rotate_block_left"],
-                                  episodes=2, seed=s, workers=1), progress=False)
-    Path(out).mkdir(parents=True, exist_ok=True)
-    (Path(out) / f"latched_seed{s}.json").write_text(json.dumps(r, indent=1, default=str))
-    print(s, r["average_success"], flush=True)
+if __name__ == "__main__":
+    from true_subgoal import evaluate_seeds  # this folder, beside this script
+
+    evaluate_seeds(LatchedSubgoal.from_checkpoint("models/trivla_cpu"), "latched",
+                   [int(s) for s in sys.argv[1].split(",")], sys.argv[2])

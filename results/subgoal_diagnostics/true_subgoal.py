@@ -37,15 +37,22 @@ class TrueSubgoal(TriVLAHarnessPolicy):
                 self.overrides += 1
         return super().act(observation)
 
-seeds = [int(s) for s in sys.argv[1].split(",")]
-out = sys.argv[2]
-torch.set_num_threads(1)
-policy = TrueSubgoal.from_checkpoint("models/trivla_cpu")
-policy.name = "trivla+true_subgoal"
-ev._POLICY_CACHE[("trivla", None, None, None)] = policy
-for s in seeds:
-    r = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=["lift_block", "place_in_bowl", "stack_block", "rotate_block_left"],
-                                  episodes=2, seed=s, workers=1), progress=False)
+GRASP_TASKS = ["lift_block", "place_in_bowl", "stack_block", "rotate_block_left"]
+
+
+def evaluate_seeds(policy, kind: str, seeds: list[int], out: str) -> None:
+    """`evaluate --episodes 2` of the grasp tasks on each seed, in this process, as `policy`; writes
+    OUT/KIND_seedS.json per seed."""
+    torch.set_num_threads(1)
+    ev._POLICY_CACHE[("trivla", None, None, None)] = policy
     Path(out).mkdir(parents=True, exist_ok=True)
-    (Path(out) / f"true_seed{s}.json").write_text(json.dumps(r, indent=1, default=str))
-    print(s, r["average_success"], {k: v for k, v in r["tasks"].items()}, "overrides", policy.overrides, flush=True)
+    for s in seeds:
+        r = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=GRASP_TASKS, episodes=2, seed=s, workers=1), progress=False)
+        (Path(out) / f"{kind}_seed{s}.json").write_text(json.dumps(r, indent=1, default=str))
+        print(s, r["average_success"], {t: v["successes"] for t, v in r["tasks"].items()}, flush=True)
+
+
+if __name__ == "__main__":
+    policy = TrueSubgoal.from_checkpoint("models/trivla_cpu")
+    policy.name = "trivla+true_subgoal"
+    evaluate_seeds(policy, "true", [int(s) for s in sys.argv[1].split(",")], sys.argv[2])

@@ -15,8 +15,8 @@ episodes are split across ranks.
 An ablation arm without System 2 (`--no-system2`) has a key of its own, but its System 3 features are
 those of any model with the same System 3 weights and settings: System 2 draws no noise, so System 3's
 outputs do not depend on it. Each folder's cache_info.json records `dynamics_key` (System 3's weights
-and settings alone), and such an arm reads the System 3 tensors of a full model's shards with its
-`dynamics_key` instead of computing them again (`feature_shards_borrowed` in the summary; the lending
+and settings alone), and such an arm reads the System 3 tensors of another folder's shards with its
+`dynamics_key` (a full model's, or another such arm's) instead of computing them again (`feature_shards_borrowed` in the summary; the lending
 folders are listed in the arm's cache_info.json and summary: delete them and the arm recomputes).
 A folder lends once a full model's policy stage has run on it with this code, which writes its
 `dynamics_key`.
@@ -112,7 +112,7 @@ def dynamics_feature_key(model: TriVLA, config: TrainConfig) -> str | None:
 
 
 def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
-    """Cache folders of models with System 2 and this System 3 (their shards hold its features)."""
+    """Other cache folders of models with this System 3 (their shards hold its features)."""
     found = []
     for info_path in sorted(features_root.glob("*/cache_info.json")):
         if info_path.parent == own:
@@ -121,7 +121,7 @@ def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
             info = json.loads(info_path.read_text())
         except (OSError, ValueError):
             continue
-        if info.get("dynamics_key") == dynamics_key and info.get("system2") and info.get("system3"):
+        if info.get("dynamics_key") == dynamics_key:
             found.append(info_path.parent)
     return found
 
