@@ -165,6 +165,43 @@ def test_dense_block_targets_mark_the_cells_that_show_each_block():
         dense_block_targets(labels, grid=3, classes=3)
 
 
+def test_dense_block_targets_with_subcells_say_where_in_the_cell_a_block_lies():
+    """With sub-cells each token's entries are its cell's sub-cells in row-major order, each with
+    one entry per class; one sub-cell per side is the whole cell."""
+    from trivla_drake.nn.vision_language import dense_block_targets
+
+    labels = torch.zeros(1, 56, 56, dtype=torch.uint8)
+    labels[0, 30:32, 5:10] = 2  # token 2 (cell row 1, column 0), its sub-cell (row 0, column 0) of 2 x 2
+    labels[0, 50:52, 50:52] = 1  # token 3 (row 1, column 1), sub-cell (1, 1)
+    targets = dense_block_targets(labels, grid=2, classes=3, subcells=2)
+    assert targets.shape == (1, 4, 12)
+    assert targets[0, 2, 0 * 3 + 1] == 1 and targets[0, 3, 3 * 3 + 0] == 1 and targets.sum() == 2
+    whole = dense_block_targets(labels, grid=2, classes=3)
+    assert torch.equal(whole, targets.view(1, 4, 4, 3).amax(2))
+    with pytest.raises(ValueError, match="2 tokens x 3 sub-cells"):
+        dense_block_targets(labels, grid=2, classes=3, subcells=3)
+
+
+def test_dense_subcells_widen_the_block_head_and_are_checked():
+    import dataclasses
+
+    cfg = make_config("tiny", use_system3=False)
+    vl = dataclasses.replace(cfg.vision_language, dense_classes=3, dense_subcells=2)
+    model = TriVLA(dataclasses.replace(cfg, vision_language=vl))
+    assert model.vision_language.block_head.out_features == 3 * 4
+    size = model.image_size
+    labels = torch.zeros(1, 2, size, size, dtype=torch.uint8)
+    labels[:, 0, 10:20, 10:20] = 1
+    frames = _frames(2, seed=5)
+    batch = {"static_rgb": frames[:1], "wrist_rgb": frames[1:], "instruction": ["is the drawer open?"],
+             "answer": ["no"], "block_labels": labels}
+    loss, info = model.compute_vlm_loss(batch, dense_weight=1.0)
+    assert info["dense_loss"] > 0 and torch.isfinite(loss)
+    cell = size // round(model.vision_language.num_image_tokens**0.5)
+    with pytest.raises(ValueError, match=f"dense_subcells must be >= 1 and divide a token's image cell \\({cell} pixels\\)"):
+        TriVLA(dataclasses.replace(cfg, vision_language=dataclasses.replace(vl, dense_subcells=cell + 1)))
+
+
 def test_dense_loss_trains_the_vision_tower_and_names_bad_labels():
     import dataclasses
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -416,6 +417,17 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
         TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), dense_weight=1.0).resolved().validate()
     with pytest.raises(ValueError, match="dense_weight must be >= 0"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=-1.0).resolved().validate()
+    # --dense-subcells on a model whose head has whole cells: a fresh, wider head, recorded in the config
+    finer = train(TrainConfig(stage="vlm", out=str(tmp_path / "finer"), init=summary["final_checkpoint"],
+                              steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
+                              dense_weight=1.0, dense_subcells=2, **runs["common"]))
+    finer_model = load_checkpoint(finer["final_checkpoint"])
+    assert finer_model.config.vision_language.dense_subcells == 2
+    assert finer_model.vision_language.block_head.out_features == 3 * 4
+    with pytest.raises(ValueError, match="dense_subcells.*needs dense_weight"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_subcells=2).resolved().validate()
+    with pytest.raises(ValueError, match="dense_subcells must be >= 1"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=1.0, dense_subcells=0).resolved().validate()
 
 
 def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, tmp_path):
@@ -486,3 +498,70 @@ def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borr
             (lender / feature_cache_key(full, config)).symlink_to(Path(lent[0]).parent)
         _, summary = ensure_feature_cache(model, reader, [0], setting, DistEnv(), progress=False)
         assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 1
+
+
+def test_a_retrained_system2_copies_system3_features_from_a_lender(runs, tmp_path):
+    """A model whose System 2 differs but whose System 3 is the same computes Q_vl only: its own
+    shards get the lender's System 3 tensors, and equal the shards it computes alone."""
+    from safetensors.torch import load_file
+
+    from trivla_drake.train.distributed import DistEnv
+    from trivla_drake.train.features import dynamics_feature_key, ensure_feature_cache, feature_cache_key
+
+    reader = LeRobotReader(runs["data"])
+    config = TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "o"), **runs["common"])
+    config = dataclasses.replace(config, cache_dir=str(tmp_path / "cache"))  # the lender is deleted below
+    full = load_checkpoint(runs["vlm"]["final_checkpoint"]).eval()
+    lender, _ = ensure_feature_cache(full, reader, [0, 1, 2], config, DistEnv(), progress=False)
+    retrained = load_checkpoint(runs["vlm"]["final_checkpoint"]).eval()
+    with torch.no_grad():
+        next(retrained.vision_language.vision_encoder.parameters()).add_(1e-2)
+    assert dynamics_feature_key(retrained, config) == dynamics_feature_key(full, config)
+    assert feature_cache_key(retrained, config) != feature_cache_key(full, config)
+    shards, summary = ensure_feature_cache(retrained, reader, [0, 1, 2], config, DistEnv(), progress=False)
+    assert summary["feature_shards_dynamics_copied"] == 3 and summary["feature_shards_borrowed"] == 0
+    assert summary["feature_cache_lenders"] == [str(lender[0].parent)]
+    assert all(path.parent.name == feature_cache_key(retrained, config) for path in shards.values())
+    alone = dataclasses.replace(config, cache_dir=str(tmp_path / "own_cache"))
+    own, summary = ensure_feature_cache(retrained, reader, [0, 1, 2], alone, DistEnv(), progress=False)
+    assert summary["feature_shards_dynamics_copied"] == 0 and summary["feature_cache_lenders"] == []
+    for episode in (0, 2):
+        copied, computed, lent = (load_file(str(s[episode])) for s in (shards, own, lender))
+        assert copied.keys() == computed.keys()
+        for key in copied:
+            torch.testing.assert_close(copied[key], computed[key])
+        torch.testing.assert_close(copied["dynamics_static"], lent["dynamics_static"])
+        assert not torch.equal(copied["q_vl"], lent["q_vl"])
+    # written, the shards stand alone: the lender's removal leaves them valid, and they are reused
+    shutil.rmtree(lender[0].parent)
+    _, summary = ensure_feature_cache(retrained, reader, [0, 1, 2], config, DistEnv(), progress=False)
+    assert summary["feature_shards_reused"] == 3 and summary["feature_shards_computed"] == 0
+
+
+def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, tmp_path):
+    """--system2-from: the --init model with the donor's System 2 (trimmed as --init's is); System 3's
+    features are copied from --init's cache, Q_vl computed with the new System 2."""
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "swap"), steps=2,
+                                init=runs["policy"]["final_checkpoint"], system2_from=runs["video"]["final_checkpoint"],
+                                **runs["common"]))
+    model = load_checkpoint(summary["final_checkpoint"])
+    donor, init = load_checkpoint(runs["video"]["final_checkpoint"]), load_checkpoint(runs["policy"]["final_checkpoint"])
+    assert _same(_weights(model, "vision_language."), _weights(donor, "vision_language."))
+    assert _same(_weights(model, "dynamics."), _weights(init, "dynamics."))
+    assert not _same(_weights(model, "vision_language."), _weights(init, "vision_language."))
+    assert summary["feature_shards_dynamics_copied"] == 3 and summary["feature_shards_computed"] == 3
+    assert summary["feature_cache"] != runs["policy"]["feature_cache"]
+    with pytest.raises(ValueError, match="system2_from.*needs --stage policy, --init"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"),
+                    system2_from=runs["video"]["final_checkpoint"]).resolved().validate()
+    with pytest.raises(ValueError, match="system2_from.*follow run"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"), init=runs["policy"]["final_checkpoint"],
+                    grounding_weight=1.0, grounding_phase="follow",
+                    system2_from=runs["video"]["final_checkpoint"]).resolved().validate()
+    no_s2 = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "no_s2"), steps=1,
+                              init=runs["policy"]["final_checkpoint"], use_system2=False, **runs["common"]))
+    with pytest.raises(ValueError, match="--system2-from .*needs one in both models"):
+        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "bad"), steps=1,
+                          init=runs["policy"]["final_checkpoint"], system2_from=no_s2["final_checkpoint"],
+                          **runs["common"]))
+    assert not (tmp_path / "bad" / "final").exists()

@@ -85,6 +85,11 @@ class VisionLanguageConfig:
     # (`train --dense-weight`) from the renderer's label images so the vision tower learns where the
     # blocks are. Not in Eagle-2 (its SigLIP comes pretrained); unused at inference. 0: no head.
     dense_classes: int = 0
+    # Sub-cells per side of each token's image cell that the block head tells apart: with 4, a token of
+    # 28 x 28 pixels says which of its 16 cells of 7 x 7 pixels show each block, so the tokens must
+    # carry where in their cell a block lies, finer than the token grid (results/subcell_dense). 1: the
+    # whole cell (checkpoints saved before it existed). Must divide the cell's side in pixels.
+    dense_subcells: int = 1
     # Local pretrained weights (never downloaded). eagle2_path holds a whole Eagle-2 checkpoint
     # (vision_model.*, mlp1.*, language_model.*); otherwise siglip_path / llm_path load the parts.
     eagle2_path: str | None = None
@@ -271,6 +276,10 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError("vision_language.max_instruction_tokens must be >= 1")
     if vl.dense_classes < 0:
         raise ValueError(f"vision_language.dense_classes must be >= 0; got {vl.dense_classes}")
+    cell = vl.vision.image_size // (grid // factor)  # a token's image cell, pixels per side
+    if vl.dense_subcells < 1 or cell % vl.dense_subcells:
+        raise ValueError(f"vision_language.dense_subcells must be >= 1 and divide a token's image cell "
+                         f"({cell} pixels); got {vl.dense_subcells}")
     n_up = len(dyn.unet.up_block_types)
     if not 1 <= dyn.feature_up_blocks <= n_up:
         raise ValueError(f"dynamics.feature_up_blocks must be in [1, {n_up}]; got {dyn.feature_up_blocks}")

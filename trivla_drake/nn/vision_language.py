@@ -26,19 +26,24 @@ DENSE_MIN_FRACTION = 0.005
 """A token's image cell shows a block when at least this share of its pixels do (4 of 28 x 28)."""
 
 
-def dense_block_targets(labels: torch.Tensor, grid: int, classes: int) -> torch.Tensor:
-    """uint8 label maps (N, S, S), 0 for nothing and 1 + k for block k, -> float (N, grid^2, classes):
-    1 where at least DENSE_MIN_FRACTION of the pixels of the token's cell show block k. Cells are in
-    row-major order, the order of the image tokens after pixel shuffle."""
+def dense_block_targets(labels: torch.Tensor, grid: int, classes: int, subcells: int = 1) -> torch.Tensor:
+    """uint8 label maps (N, S, S), 0 for nothing and 1 + k for block k, -> float (N, grid^2, subcells^2
+    * classes): 1 where at least DENSE_MIN_FRACTION of the pixels of a sub-cell of the token's cell show
+    block k. The token's cell is split into `subcells` x `subcells` sub-cells (1: the whole cell), in
+    row-major order, each with its `classes` entries. Cells are in row-major order, the order of the
+    image tokens after pixel shuffle."""
     n, size, width = labels.shape
-    if size != width or size % grid:
-        raise ValueError(f"block labels must be square with a side divisible by {grid}; got {size} x {width}")
+    if size != width or size % (grid * subcells):
+        raise ValueError(f"block labels must be square with a side divisible by {grid} tokens x {subcells} "
+                         f"sub-cells; got {size} x {width}")
     if int(labels.max()) > classes:
         raise ValueError(f"block labels go up to {int(labels.max())}, the head has {classes} classes")
     onehot = F.one_hot(labels.long(), classes + 1)[..., 1:].float()
-    cell = size // grid
-    share = onehot.reshape(n, grid, cell, grid, cell, classes).mean(dim=(2, 4))
-    return (share.reshape(n, grid * grid, classes) >= DENSE_MIN_FRACTION).float()
+    fine = grid * subcells
+    pixels = size // fine
+    share = onehot.reshape(n, fine, pixels, fine, pixels, classes).mean(dim=(2, 4))  # (N, fine, fine, K)
+    share = share.reshape(n, grid, subcells, grid, subcells, classes).permute(0, 1, 3, 2, 4, 5)
+    return (share.reshape(n, grid * grid, subcells * subcells * classes) >= DENSE_MIN_FRACTION).float()
 
 
 def images_to_siglip_input(images: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
@@ -75,7 +80,8 @@ class VisionLanguageModule(nn.Module):
             nn.BatchNorm1d(self.num_image_tokens * llm.config.hidden_size, momentum=0.01)
             if config.image_token_norm else None
         )
-        self.block_head = nn.Linear(llm.config.hidden_size, config.dense_classes) if config.dense_classes > 0 else None
+        self.block_head = (nn.Linear(llm.config.hidden_size, config.dense_classes * config.dense_subcells**2)
+                           if config.dense_classes > 0 else None)
         num_layers = len(llm.model.layers)
         if not 1 <= config.select_layer <= num_layers:
             raise ValueError(
@@ -237,7 +243,8 @@ class VisionLanguageModule(nn.Module):
         if self.block_head is None:
             raise ValueError("this System 2 has no block head (vision_language.dense_classes is 0)")
         grid = round(self.num_image_tokens**0.5)
-        targets = dense_block_targets(block_labels.to(tokens.device), grid, self.block_head.out_features)
+        targets = dense_block_targets(block_labels.to(tokens.device), grid, self.config.dense_classes,
+                                      self.config.dense_subcells)
         return F.binary_cross_entropy_with_logits(self.block_head(tokens).float(), targets)
 
     def vlm_losses(

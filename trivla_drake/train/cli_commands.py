@@ -66,12 +66,14 @@ def config_from_args(args: argparse.Namespace):
         image_token_norm=args.image_token_norm,
         vl_position_embedding=args.vl_position_embedding,
         dense_weight=args.dense_weight,
+        dense_subcells=args.dense_subcells,
         grounding_weight=args.grounding_weight,
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
         subgoal_offset=args.subgoal_offset,
         subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
+        system2_from=args.system2_from,
         grounding_reads_tcp=args.grounding_reads_tcp,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
@@ -175,6 +177,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--dense-weight", type=float, default=0.0,
                         help="vlm: weight of a dense loss that trains System 2's image tokens to say which blocks "
                              "their image cells show (from the renderer's label images); 0: none")
+    parser.add_argument("--dense-subcells", type=int, default=1,
+                        help="vlm, with --dense-weight: split each image token's cell into N x N sub-cells "
+                             "whose blocks the dense loss asks for, so the tokens say where in their cell a "
+                             "block lies (default 1: the whole cell)")
     parser.add_argument("--vl-position-embedding", action="store_true",
                         help="policy: give System 1 a learned embedding of System 2's token positions, so it "
                              "knows where in the image a token it reads lies (added when --init has none)")
@@ -192,6 +198,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--keep-grounding", action="store_true",
                         help="policy, --grounding-phase bind with --init: go on binding the --init checkpoint's "
                              "grounding instead of a fresh one (bind on few scenes first, then on more)")
+    parser.add_argument("--system2-from", default=None, metavar="CHECKPOINT",
+                        help="policy, with --init: replace --init's System 2 by this checkpoint's (e.g. one "
+                             "retrained with --stage vlm), keeping System 1 and 3; its features are cached anew "
+                             "(System 3's copied from the cache of --init's model)")
     parser.add_argument("--grounding-reads-tcp", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
                              "point's features, to place its sub-goal from the wrist view (added when --init's "

@@ -159,6 +159,9 @@ class TrainConfig:
     # cell shows, from the renderer's label images; `VisionLanguageConfig.dense_classes`); a run from
     # a checkpoint without the head adds one. 0: no dense loss (the shipped recipe).
     dense_weight: float = 0.0
+    # vlm stage, with dense_weight: sub-cells per side of each token's cell the block head tells apart
+    # (`VisionLanguageConfig.dense_subcells`); a starting head with others is replaced by a fresh one.
+    dense_subcells: int = 1
     # policy stage: give System 1 an embedding of Q_vl's token positions
     # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
     vl_position_embedding: bool = False
@@ -179,6 +182,10 @@ class TrainConfig:
     # policy stage, grounding_phase "bind" with --init: continue the --init checkpoint's grounding instead
     # of binding a fresh one, a curriculum (bind on few scenes, where the binding forms, then on more).
     keep_grounding: bool = False
+    # policy stage, with --init: replace the --init model's System 2 by this checkpoint's (a System 2
+    # retrained by the vlm stage), keeping System 1 and System 3; the feature statistics are fitted
+    # again, so not in a follow run, which keeps its bind run's (results/subcell_dense).
+    system2_from: str | None = None
     # policy stage, with a grounding: the grounding also reads the tool-centre point's features
     # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
     # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
@@ -286,6 +293,13 @@ class TrainConfig:
         if self.keep_grounding and not (self.grounding_phase == "bind" and self.init):
             raise ValueError("keep_grounding (--keep-grounding) continues the grounding of a --init checkpoint in a "
                              "bind run: it needs --grounding-phase bind and --init")
+        if self.system2_from is not None:
+            if not (self.stage == "policy" and self.init and self.use_system2):
+                raise ValueError("system2_from (--system2-from) replaces the System 2 of a --init model in the policy "
+                                 "stage: it needs --stage policy, --init and System 2 (drop --no-system2)")
+            if self.grounding_phase == "follow":
+                raise ValueError("system2_from (--system2-from) needs its feature statistics fitted again, which a "
+                                 "follow run does not do: bind (--grounding-phase bind) or train jointly first")
         if self.grounding_reads_tcp and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
             raise ValueError("grounding_reads_tcp (--grounding-reads-tcp) gives System 1's instruction grounding the "
                              "tcp features: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
@@ -300,6 +314,11 @@ class TrainConfig:
                              "features (drop --no-tcp-features)")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
+        if self.dense_subcells < 1:
+            raise ValueError(f"dense_subcells must be >= 1; got {self.dense_subcells}")
+        if self.dense_subcells != 1 and not self.dense_weight:
+            raise ValueError("dense_subcells (--dense-subcells) shapes the dense loss's targets: it needs "
+                             "dense_weight (--dense-weight) > 0")
         if self.dense_weight and self.stage != "vlm":
             raise ValueError("dense_weight (--dense-weight) weighs a loss of the vlm stage, which trains System 2; "
                              f"not the {self.stage} stage")

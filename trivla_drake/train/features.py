@@ -12,13 +12,17 @@ fingerprint hashes the episode's content. Shards are written atomically (tempora
 so an interrupted caching run resumes with the episodes it did not finish; under torchrun the missing
 episodes are split across ranks.
 
-An ablation arm without System 2 (`--no-system2`) has a key of its own, but its System 3 features are
-those of any model with the same System 3 weights and settings: System 2 draws no noise, so System 3's
-outputs do not depend on it. Each folder's cache_info.json records `dynamics_key` (System 3's weights
-and settings alone), and such an arm reads the System 3 tensors of another folder's shards with its
-`dynamics_key` (a full model's, or another such arm's) instead of computing them again (`feature_shards_borrowed` in the summary; the lending
-folders are listed in the arm's cache_info.json and summary: delete them and the arm recomputes).
-A folder lends once a full model's policy stage has run on it with this code, which writes its
+System 2 draws no noise, so System 3's outputs do not depend on it: every model with the same System 3
+weights and settings has the same System 3 features. Each folder's cache_info.json records
+`dynamics_key` (System 3's weights and settings alone), and a missing shard whose episode another
+folder with that key holds (a lender) is not computed in full:
+- an ablation arm without System 2 (`--no-system2`) reads the lender's shard as it is
+  (`feature_shards_borrowed` in the summary);
+- a model with System 2 (a retrained System 2 on the same System 3) computes System 2's Q_vl only
+  and writes a shard of its own with the lender's System 3 tensors copied in
+  (`feature_shards_dynamics_copied`), so it depends on no other folder once written.
+The lending folders are listed in cache_info.json and the summary: delete them and the episodes are
+computed in full. A folder lends once a policy stage has run on it with this code, which writes its
 `dynamics_key`.
 """
 
@@ -126,18 +130,9 @@ def _lenders(features_root: Path, dynamics_key: str, own: Path) -> list[Path]:
     return found
 
 
-def _borrow_shards(shards: dict[int, Path], missing: list[int], lenders: list[Path]) -> list[int]:
-    """Points the missing episodes' shards at valid lender shards of the same episode (in place);
-    returns the episodes still missing."""
-    still = []
-    for episode in missing:
-        lent = next((folder / shards[episode].name for folder in lenders
-                     if _shard_is_valid(folder / shards[episode].name)), None)
-        if lent is None:
-            still.append(episode)
-        else:
-            shards[episode] = lent
-    return still
+def _lent_shard(name: str, lenders: list[Path]) -> Path | None:
+    """The first valid shard called `name` in the lender folders, or None."""
+    return next((folder / name for folder in lenders if _shard_is_valid(folder / name)), None)
 
 
 def _episode_seed(seed: int, fingerprint: str) -> int:
@@ -146,11 +141,20 @@ def _episode_seed(seed: int, fingerprint: str) -> int:
 
 @torch.inference_mode()
 def compute_episode_features(
-    model: TriVLA, reader: LeRobotReader, episode: int, config: TrainConfig
+    model: TriVLA, reader: LeRobotReader, episode: int, config: TrainConfig, dynamics_from: Path | None = None
 ) -> dict[str, torch.Tensor]:
-    """System 2 and 3 outputs for every `feature_stride`-th frame of one episode (see module doc)."""
+    """System 2 and 3 outputs for every `feature_stride`-th frame of one episode (see module doc);
+    with `dynamics_from`, a lender's shard of this episode, its System 3 tensors instead of System 3's."""
     length = int(reader.episodes[episode]["length"])
     frames_index = np.arange(0, length, config.feature_stride)
+    lent: dict[str, torch.Tensor] = {}
+    if dynamics_from is not None:
+        from safetensors import safe_open
+
+        with safe_open(str(dynamics_from), framework="pt", device="cpu") as f:  # its Q_vl is not read
+            if f.get_tensor("frame_index").tolist() != frames_index.tolist():
+                raise RuntimeError(f"the lent shard {dynamics_from} holds other frames of episode {episode}")
+            lent = {k: f.get_tensor(k) for k in ("dynamics_static", "dynamics_wrist")}
     static = resize_frames(reader.episode_video(episode, config.static_camera)[frames_index], model.image_size)
     wrist = resize_frames(reader.episode_video(episode, config.wrist_camera)[frames_index], model.image_size)
     instruction = reader.task_of(episode)
@@ -166,7 +170,7 @@ def compute_episode_features(
             if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
                 raise RuntimeError("unexpected padding in System 2's tokens of one episode")
             parts.setdefault("q_vl", []).append(q_vl.float().cpu())
-        if model.dynamics is not None:
+        if model.dynamics is not None and not lent:
             f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
             parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
             parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
@@ -180,6 +184,7 @@ def compute_episode_features(
                 f"{config.feature_dtype}: use feature_dtype float32 (--feature-dtype float32)"
             )
         out[key] = converted.contiguous()
+    out.update(lent)
     out["frame_index"] = torch.from_numpy(frames_index.astype(np.int64))
     return out
 
@@ -225,13 +230,20 @@ def ensure_feature_cache(
     root = Path(config.cache_dir) / "features" / key
     shards = {e: root / f"{episode_fingerprint(reader, e)}.safetensors" for e in episodes}
     missing: list[int] = []
+    copy_from: dict[int, Path] = {}  # episode -> lender shard whose System 3 tensors it copies
     if env.is_main:
         missing = [e for e in episodes if not (shards[e].is_file() and _shard_is_valid(shards[e]))]
-        if model.vision_language is None and dynamics_key is not None and missing:
-            missing = _borrow_shards(shards, missing, _lenders(root.parent, dynamics_key, root))
+        if dynamics_key is not None and missing:
+            lenders = _lenders(root.parent, dynamics_key, root)
+            lent = {e: shard for e in missing if (shard := _lent_shard(shards[e].name, lenders)) is not None}
+            if model.vision_language is None:  # the lender's shard is this arm's
+                shards.update(lent)
+                missing = [e for e in missing if e not in lent]
+            else:
+                copy_from = lent
     # Rank 0's lists, so that every rank splits the same work and reads the same lent shards.
-    missing, shards = env.broadcast_object((missing, shards))
-    lenders = sorted({str(path.parent) for path in shards.values() if path.parent != root})
+    missing, shards, copy_from = env.broadcast_object((missing, shards, copy_from))
+    lenders = sorted({str(path.parent) for path in [*shards.values(), *copy_from.values()] if path.parent != root})
     borrowed = sum(path.parent != root for path in shards.values())
     mine = missing[env.rank :: env.world_size]
     if env.is_main:
@@ -255,7 +267,7 @@ def ensure_feature_cache(
                disable=not (progress and env.is_main) or not mine)
     try:
         for episode in mine:
-            tensors = compute_episode_features(model, reader, episode, config)
+            tensors = compute_episode_features(model, reader, episode, config, copy_from.get(episode))
             _save_shard(shards[episode], tensors, {"instruction": reader.task_of(episode), "key": key})
             bar.update(1)
     finally:
@@ -271,6 +283,7 @@ def ensure_feature_cache(
         "feature_shards_computed": len(missing),
         "feature_shards_reused": len(episodes) - len(missing) - borrowed,
         "feature_shards_borrowed": borrowed,
+        "feature_shards_dynamics_copied": len(copy_from),
         "feature_cache_bytes_per_episode": total_bytes / len(sample) if sample else None,
         "feature_cache_bytes_per_frame": total_bytes / cached_frames if sample else None,
     }

@@ -62,12 +62,13 @@ def apply_ablations(
     subgoal_offset: bool = False,
     grounding_reads_tcp: bool = False,
     subgoal_yaw: bool = False,
+    dense_subcells: int | None = None,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
     it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
     where it has none, with `dense_classes` > 0, a fresh block head on System 2's image tokens
-    where it has none, with `instruction_grounding`, a fresh instruction grounding in System 1
+    where it has none (or where its `dense_subcells` differ from those asked; None: as they are), with `instruction_grounding`, a fresh instruction grounding in System 1
     where it has none, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
     where it has none and, with `grounding_reads_tcp`, a grounding that reads the tcp features
     (its sub-goal head's first layer and tcp path fresh) where it reads none and, with `subgoal_yaw`,
@@ -84,6 +85,7 @@ def apply_ablations(
     norm = cfg.vision_language.image_token_norm or (image_token_norm and use_system2)
     vl_position = use_system2 and (cfg.policy.vl_position_embedding or vl_position_embedding)
     classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
+    subcells = cfg.vision_language.dense_subcells if dense_subcells is None or not classes else dense_subcells
     grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
     offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
     reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
@@ -91,15 +93,16 @@ def apply_ablations(
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
             cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp,
-            cfg.policy.subgoal_yaw) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw):
+            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw, subcells):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
                                    instruction_grounding=grounding, subgoal_offset=offset,
                                    grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw),
-        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes),
+        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes,
+                                            dense_subcells=subcells),
     )
     tokenizers = {}
     if use_system2:
@@ -112,6 +115,28 @@ def apply_ablations(
                  tokenizers=tokenizers, load_pretrained=False)
     _transfer_weights(model, new)
     return new
+
+
+def replace_system2(model: TriVLA, donor: TriVLA, where: str) -> TriVLA:
+    """`model` with its System 2 replaced by `donor`'s (trimmed above its read-out layer when
+    `model`'s is), in place. The donor must give Q_vl of the same width and layout (prompt head and
+    image tokens), which System 1 reads; ValueError naming what differs otherwise."""
+    mine, theirs = model.vision_language, donor.vision_language
+    if mine is None or theirs is None:
+        raise ValueError(f"{where}: replacing System 2 needs one in both models "
+                         f"(--init has {'none' if mine is None else 'one'}, the donor {'none' if theirs is None else 'one'})")
+    for name, a, b in (("Q_vl width (hidden size)", mine.hidden_size, theirs.hidden_size),
+                       ("image size", mine.image_size, theirs.image_size),
+                       ("image tokens per view", mine.num_image_tokens, theirs.num_image_tokens),
+                       ("prompt head + image tokens", mine.instruction_offset(2), theirs.instruction_offset(2))):
+        if a != b:
+            raise ValueError(f"{where}: its System 2's {name} is {b}, the --init model's {a}: "
+                             "System 1 reads Q_vl laid out as the --init model's")
+    if mine.config.drop_unused_llm_layers:
+        theirs.drop_layers_above_readout()
+    model.vision_language = theirs.to(model.device)
+    model.config = dataclasses.replace(model.config, vision_language=theirs.config)
+    return model
 
 
 def _resolve_preset(config: TrainConfig) -> str:
@@ -156,6 +181,7 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
             dense_classes=_dense_classes(config) if config.use_system2 else 0,
+            dense_subcells=config.dense_subcells,
             drop_unused_llm_layers=vision_language.drop_unused_llm_layers and config.stage != "vlm"),
     )
 
@@ -186,7 +212,9 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
                                 config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp,
-                                config.subgoal_yaw)
+                                config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None)
+        if config.system2_from is not None:
+            model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
         if config.grounding_phase == "bind" and not config.keep_grounding:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
