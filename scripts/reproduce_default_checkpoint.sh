@@ -519,3 +519,30 @@ if [[ "${SUBGOALS:-0}" == 1 ]]; then
   done
   trivla-drake probe --checkpoint "$RUNS/rebind_export" --grasp-episodes 6 > results/subgoal_diagnostics/rebind/grasps_rebind.md
 fi
+# 28. Optional (SUBCELL=1; results/subcell_dense/): System 2 trained afresh (1800 steps) with the dense loss on
+#     4 x 4 sub-cells of each token's image cell, probed against the shipped System 2; swapped into the shipped
+#     model (--system2-from: only its Q_vl is cached, System 3's features are copied from the shipped model's
+#     cache), the grounding bound again on MORE_DATA and checked, System 1 followed; export, six seeds.
+if [[ "${SUBCELL:-0}" == 1 ]]; then
+  mkdir -p results/subcell_dense
+  trivla-drake train --stage vlm --out "$RUNS/vlm_sub4" --preset cpu --steps 1800 --threads 2 --dense-weight 1 \
+      --dense-subcells 4
+  "${PYTHON:-python}" results/subcell_dense/s2_probe.py models/trivla_cpu "$MORE_DATA" 360 1500 \
+      results/subcell_dense/probe_shipped.json
+  "${PYTHON:-python}" results/subcell_dense/s2_probe.py models/trivla_cpu "$MORE_DATA" 360 1500 \
+      results/subcell_dense/probe_shipped_patches.json patches
+  "${PYTHON:-python}" results/subcell_dense/s2_probe.py "$RUNS/vlm_sub4/final" "$MORE_DATA" 360 1500 \
+      results/subcell_dense/probe_sub4.json
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_bind" --init models/trivla_cpu \
+      --system2-from "$RUNS/vlm_sub4/final" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 \
+      --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 --subgoal-offset
+  trivla-drake probe --checkpoint "$RUNS/sub4_bind/final" --grounding-scenes 20 --threads 2 \
+      > results/subcell_dense/grounding_check_sub4_bind.md
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow" --init "$RUNS/sub4_bind/final" \
+      --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/sub4_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+        > "results/subcell_dense/sub4_seed$seed.json"
+  done
+fi
