@@ -65,15 +65,17 @@ def apply_ablations(
     dense_subcells: int | None = None,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
-    (None: as they are), with `image_token_norm`, a fresh batch norm of System 2's image tokens where
-    it has none, with `vl_position_embedding`, a fresh embedding of Q_vl's token positions in System 1
-    where it has none, with `dense_classes` > 0, a fresh block head on System 2's image tokens
-    where it has none (or where its `dense_subcells` differ from those asked; None: as they are), with `instruction_grounding`, a fresh instruction grounding in System 1
-    where it has none, with `subgoal_offset`, a fresh sub-goal offset encoder (output at zero)
-    where it has none and, with `grounding_reads_tcp`, a grounding that reads the tcp features
-    (its sub-goal head's first layer and tcp path fresh) where it reads none and, with `subgoal_yaw`,
-    a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none, as a rebuilt model that keeps every weight that still fits. A system missing
-    from `model` cannot be switched back on: ValueError."""
+    (None: as they are), rebuilt when anything changes (keeping every weight that still fits), with:
+    - `image_token_norm`: a fresh batch norm of System 2's image tokens where it has none;
+    - `vl_position_embedding`: a fresh embedding of Q_vl's token positions in System 1 where it has none;
+    - `dense_classes` > 0: a fresh block head on System 2's image tokens where it has none, or where its
+      `dense_subcells` differ from those asked (None: as they are);
+    - `instruction_grounding`: a fresh instruction grounding in System 1 where it has none;
+    - `subgoal_offset`: a fresh sub-goal offset encoder (output at zero) where it has none;
+    - `grounding_reads_tcp`: a grounding that reads the tcp features (its sub-goal head's first layer
+      and tcp path fresh) where it reads none;
+    - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none.
+    A system missing from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
         if wanted and not have:
