@@ -173,9 +173,11 @@ def test_dense_block_targets_with_subcells_say_where_in_the_cell_a_block_lies():
     labels = torch.zeros(1, 56, 56, dtype=torch.uint8)
     labels[0, 30:32, 5:10] = 2  # token 2 (cell row 1, column 0), its sub-cell (row 0, column 0) of 2 x 2
     labels[0, 50:52, 50:52] = 1  # token 3 (row 1, column 1), sub-cell (1, 1)
+    labels[0, 5:8, 30:33] = 1  # token 1 (row 0, column 1), sub-cell (0, 0): tells rows from columns apart
     targets = dense_block_targets(labels, grid=2, classes=3, subcells=2)
     assert targets.shape == (1, 4, 12)
-    assert targets[0, 2, 0 * 3 + 1] == 1 and targets[0, 3, 3 * 3 + 0] == 1 and targets.sum() == 2
+    assert targets[0, 2, 0 * 3 + 1] == 1 and targets[0, 3, 3 * 3 + 0] == 1 and targets[0, 1, 0] == 1
+    assert targets.sum() == 3
     whole = dense_block_targets(labels, grid=2, classes=3)
     assert torch.equal(whole, targets.view(1, 4, 4, 3).amax(2))
     with pytest.raises(ValueError, match="2 tokens x 3 sub-cells"):
@@ -198,7 +200,7 @@ def test_dense_subcells_widen_the_block_head_and_are_checked():
     loss, info = model.compute_vlm_loss(batch, dense_weight=1.0)
     assert info["dense_loss"] > 0 and torch.isfinite(loss)
     cell = size // round(model.vision_language.num_image_tokens**0.5)
-    with pytest.raises(ValueError, match=f"dense_subcells must be >= 1 and divide a token's image cell \\({cell} pixels\\)"):
+    with pytest.raises(ValueError, match=f"dense_subcells \\(train --dense-subcells\\) must be >= 1 and divide a token's image cell \\({cell} pixels\\)"):
         TriVLA(dataclasses.replace(cfg, vision_language=dataclasses.replace(vl, dense_subcells=cell + 1)))
 
 

@@ -424,6 +424,10 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
     finer_model = load_checkpoint(finer["final_checkpoint"])
     assert finer_model.config.vision_language.dense_subcells == 2
     assert finer_model.vision_language.block_head.out_features == 3 * 4
+    again = train(TrainConfig(stage="vlm", out=str(tmp_path / "again"), init=finer["final_checkpoint"],
+                              steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
+                              dense_weight=1.0, **runs["common"]))  # no --dense-subcells: the head is kept
+    assert load_checkpoint(again["final_checkpoint"]).config.vision_language.dense_subcells == 2
     with pytest.raises(ValueError, match="dense_subcells.*needs dense_weight"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_subcells=2).resolved().validate()
     with pytest.raises(ValueError, match="dense_subcells must be >= 1"):
@@ -565,3 +569,7 @@ def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, t
                           init=runs["policy"]["final_checkpoint"], system2_from=no_s2["final_checkpoint"],
                           **runs["common"]))
     assert not (tmp_path / "bad" / "final").exists()
+    with pytest.raises(FileNotFoundError, match="--system2-from .*not a checkpoint directory"):
+        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "missing"), steps=1,
+                          init=runs["policy"]["final_checkpoint"], system2_from=str(tmp_path / "nowhere"),
+                          **runs["common"]))

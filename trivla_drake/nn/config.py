@@ -87,7 +87,8 @@ class VisionLanguageConfig:
     dense_classes: int = 0
     # Sub-cells per side of each token's image cell that the block head tells apart: with 4, a token of
     # 28 x 28 pixels says which of its 16 cells of 7 x 7 pixels show each block, so the tokens must
-    # carry where in their cell a block lies, finer than the token grid (results/subcell_dense). 1: the
+    # carry where in their cell a block lies, finer than the token grid (results/subcell_dense); a
+    # sub-cell of 7 x 7 shows a block when any of its pixels does (DENSE_MIN_FRACTION). 1: the
     # whole cell (checkpoints saved before it existed). Must divide the cell's side in pixels.
     dense_subcells: int = 1
     # Local pretrained weights (never downloaded). eagle2_path holds a whole Eagle-2 checkpoint
@@ -278,8 +279,8 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(f"vision_language.dense_classes must be >= 0; got {vl.dense_classes}")
     cell = vl.vision.image_size // (grid // factor)  # a token's image cell, pixels per side
     if vl.dense_subcells < 1 or cell % vl.dense_subcells:
-        raise ValueError(f"vision_language.dense_subcells must be >= 1 and divide a token's image cell "
-                         f"({cell} pixels); got {vl.dense_subcells}")
+        raise ValueError(f"vision_language.dense_subcells (train --dense-subcells) must be >= 1 and divide a "
+                         f"token's image cell ({cell} pixels); got {vl.dense_subcells}")
     n_up = len(dyn.unet.up_block_types)
     if not 1 <= dyn.feature_up_blocks <= n_up:
         raise ValueError(f"dynamics.feature_up_blocks must be in [1, {n_up}]; got {dyn.feature_up_blocks}")

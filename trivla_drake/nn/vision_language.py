@@ -23,13 +23,15 @@ IGNORE_INDEX = -100  # label of positions the LM loss skips (prompt and image to
 
 
 DENSE_MIN_FRACTION = 0.005
-"""A token's image cell shows a block when at least this share of its pixels do (4 of 28 x 28)."""
+"""A token's image cell (or sub-cell) shows a block when at least this share of its pixels do: 4 of
+28 x 28, or any pixel of a 7 x 7 sub-cell (`VisionLanguageConfig.dense_subcells` 4)."""
 
 
 def dense_block_targets(labels: torch.Tensor, grid: int, classes: int, subcells: int = 1) -> torch.Tensor:
     """uint8 label maps (N, S, S), 0 for nothing and 1 + k for block k, -> float (N, grid^2, subcells^2
     * classes): 1 where at least DENSE_MIN_FRACTION of the pixels of a sub-cell of the token's cell show
-    block k. The token's cell is split into `subcells` x `subcells` sub-cells (1: the whole cell), in
+    block k (for small sub-cells, any pixel). The token's cell is split into `subcells` x `subcells`
+    sub-cells (1: the whole cell), in
     row-major order, each with its `classes` entries. Cells are in row-major order, the order of the
     image tokens after pixel shuffle."""
     n, size, width = labels.shape

@@ -177,10 +177,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--dense-weight", type=float, default=0.0,
                         help="vlm: weight of a dense loss that trains System 2's image tokens to say which blocks "
                              "their image cells show (from the renderer's label images); 0: none")
-    parser.add_argument("--dense-subcells", type=int, default=1,
+    parser.add_argument("--dense-subcells", type=int, default=None,
                         help="vlm, with --dense-weight: split each image token's cell into N x N sub-cells "
                              "whose blocks the dense loss asks for, so the tokens say where in their cell a "
-                             "block lies (default 1: the whole cell)")
+                             "block lies (default: as --init's head has them; 1, the whole cell, for a new head)")
     parser.add_argument("--vl-position-embedding", action="store_true",
                         help="policy: give System 1 a learned embedding of System 2's token positions, so it "
                              "knows where in the image a token it reads lies (added when --init has none)")

@@ -161,7 +161,8 @@ class TrainConfig:
     dense_weight: float = 0.0
     # vlm stage, with dense_weight: sub-cells per side of each token's cell the block head tells apart
     # (`VisionLanguageConfig.dense_subcells`); a starting head with others is replaced by a fresh one.
-    dense_subcells: int = 1
+    # None: as the --init model has them (1 for a fresh model or one without a head).
+    dense_subcells: int | None = None
     # policy stage: give System 1 an embedding of Q_vl's token positions
     # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
     vl_position_embedding: bool = False
@@ -314,9 +315,9 @@ class TrainConfig:
                              "features (drop --no-tcp-features)")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
-        if self.dense_subcells < 1:
+        if self.dense_subcells is not None and self.dense_subcells < 1:
             raise ValueError(f"dense_subcells must be >= 1; got {self.dense_subcells}")
-        if self.dense_subcells != 1 and not self.dense_weight:
+        if self.dense_subcells is not None and not self.dense_weight:
             raise ValueError("dense_subcells (--dense-subcells) shapes the dense loss's targets: it needs "
                              "dense_weight (--dense-weight) > 0")
         if self.dense_weight and self.stage != "vlm":

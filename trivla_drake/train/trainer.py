@@ -142,6 +142,8 @@ def replace_system2(model: TriVLA, donor: TriVLA, where: str) -> TriVLA:
 
 
 def _resolve_preset(config: TrainConfig) -> str:
+    if config.system2_from is not None and not Path(config.system2_from).is_dir():
+        raise FileNotFoundError(f"--system2-from {config.system2_from!r} is not a checkpoint directory")
     if config.init:
         if not Path(config.init).is_dir():
             raise FileNotFoundError(f"--init {config.init!r} is not a checkpoint directory")
@@ -183,7 +185,7 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
             dense_classes=_dense_classes(config) if config.use_system2 else 0,
-            dense_subcells=config.dense_subcells,
+            dense_subcells=config.dense_subcells or 1,
             drop_unused_llm_layers=vision_language.drop_unused_llm_layers and config.stage != "vlm"),
     )
 
