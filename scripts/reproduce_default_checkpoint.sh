@@ -27,6 +27,14 @@ trivla-drake collect --out "$DART_DATA" --episodes-per-task 60 --action-noise 1
 #    ablation arms and the 10%-data arm (Systems 2 and 3 are untouched by the policy stage). --seed
 #    also draws the 10% subset, so both parts of that arm run with seed 0 (the same 72 episodes).
 POLICY=(train --stage policy --data "$DART_DATA" --lr 3e-4 --feature-stride 3 --threads 1)
+six_seeds() {  # six_seeds POLICY PREFIX [flags...]: `evaluate --episodes 2` on seeds 1000-1005 -> PREFIX_seedS.json
+  local policy=$1 prefix=$2
+  shift 2
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$policy" --episodes 2 --seed "$seed" --workers 2 --no-progress --json "$@" \
+        > "${prefix}_seed$seed.json"
+  done
+}
 arm() {  # arm NAME INIT SEED [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME with SEED.
   local name=$1 init=$2 seed=$3
   shift 3
@@ -237,10 +245,7 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA" --out "$RUNS/grounded_follow
 trivla-drake export "$RUNS/grounded_follow_yaw/final" --out "$RUNS/yaw_export" --drop-unused-llm-layers
 trivla-drake probe --checkpoint "$RUNS/yaw_export" --grasp-episodes 6 > results/grasp_yaw/grasps_yaw_export.md
 trivla-drake probe --checkpoint "$CURRICULUM" --grasp-episodes 6 > results/grasp_yaw/grasps_trivla_cpu.md  # then shipped
-for seed in 1000 1001 1002 1003 1004 1005; do
-  trivla-drake evaluate --policy "$RUNS/yaw_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-      > "results/grasp_yaw/yaw_seed$seed.json"
-done
+six_seeds "$RUNS/yaw_export" "results/grasp_yaw/yaw"
 
 # 18. Optional (TWISTS=1; results/yaw_twists/, not shipped): 40 more demonstrations each of lift, stack and
 #     place in bowl whose hand's yaw is twisted 17-43 degrees off on its way down to the first grasp
@@ -263,10 +268,7 @@ if [[ "${TWISTS:-0}" == 1 ]]; then
       --subgoal-offset --subgoal-yaw
   trivla-drake export "$RUNS/grounded_follow_twist/final" --out "$RUNS/twist_export" --drop-unused-llm-layers
   trivla-drake probe --checkpoint "$RUNS/twist_export" --grasp-episodes 6 > results/yaw_twists/grasps_twist_export.md
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/twist_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/yaw_twists/twist_seed$seed.json"
-  done
+  six_seeds "$RUNS/twist_export" "results/yaw_twists/twist"
 fi
 
 # 19. Optional (MISSES=1; results/missed_grasps/): 40 more demonstrations each of lift, stack and place
@@ -286,10 +288,7 @@ if [[ "${MISSES:-0}" == 1 ]]; then
       --subgoal-offset
   trivla-drake export "$RUNS/grounded_follow_miss/final" --out "$RUNS/miss_export" --drop-unused-llm-layers
   trivla-drake probe --checkpoint "$RUNS/miss_export" --grasp-episodes 6 > results/missed_grasps/grasps_miss_export.md
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/miss_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/missed_grasps/miss_seed$seed.json"
-  done
+  six_seeds "$RUNS/miss_export" "results/missed_grasps/miss"
 fi
 
 # 20. Optional (DRIFTS=1; results/approach_drifts/): 40 more demonstrations each of lift, stack and place
@@ -310,17 +309,11 @@ if [[ "${DRIFTS:-0}" == 1 ]]; then
       --subgoal-offset
   trivla-drake export "$RUNS/grounded_follow_drift/final" --out "$RUNS/drift_export" --drop-unused-llm-layers
   trivla-drake probe --checkpoint "$RUNS/drift_export" --grasp-episodes 6 > results/approach_drifts/grasps_drift_export.md
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/drift_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/approach_drifts/drift_seed$seed.json"
-  done
+  six_seeds "$RUNS/drift_export" "results/approach_drifts/drift"
   # Two diagnostics of the shipped model: sampling from the noise mean, and the demonstrations' own scenes
   # (collect's base seed 0: episodes 0-2 of each task are its first three demonstrations' scenes).
   mkdir -p results/approach_drifts/diagnostics
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$CURRICULUM" --episodes 2 --seed "$seed" --noise-scale 0 --workers 2 \
-        --no-progress --json > "results/approach_drifts/diagnostics/n0_seed$seed.json"
-  done
+  six_seeds "$CURRICULUM" "results/approach_drifts/diagnostics/n0" --noise-scale 0
   trivla-drake evaluate --policy "$CURRICULUM" --episodes 3 --seed 0 --workers 2 --no-progress --json \
       > results/approach_drifts/diagnostics/shipped_training_scenes_seed0.json
 fi
@@ -400,10 +393,7 @@ trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2
 #     without ACT's temporal ensembling, and a second moving-average follow run (lr 1.5e-4, seed 2).
 if [[ "${CHUNKS:-0}" == 1 ]]; then
   mkdir -p results/chunk_execution
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        --execute-steps 5 > "results/chunk_execution/k5_seed$seed.json"
-  done
+  six_seeds models/trivla_cpu "results/chunk_execution/k5" --execute-steps 5
   for seed in 1000 1001 1002; do
     trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
         --execute-steps 5 --ensemble-decay 0.1 > "results/chunk_execution/k5e_seed$seed.json"
@@ -411,10 +401,7 @@ if [[ "${CHUNKS:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema2_follow" --init models/trivla_cpu \
       --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/ema2_follow/final" --out "$RUNS/ema2_export" --drop-unused-llm-layers
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/ema2_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/chunk_execution/ema2_seed$seed.json"
-  done
+  six_seeds "$RUNS/ema2_export" "results/chunk_execution/ema2"
   for seed in 1000 1001 1002; do
     trivla-drake evaluate --policy "$RUNS/ema2_export" --episodes 2 --prelude 1 --seed "$seed" --workers 2 \
         --no-progress --json > "results/chunk_execution/ema2_prelude1_seed$seed.json"
@@ -433,10 +420,7 @@ if [[ "${EMPHASIS:-0}" == 1 ]]; then
       --gripper-event-weight 3 --gripper-event-window 0.5
   trivla-drake export "$RUNS/event_follow/final" --out "$RUNS/event_export" --drop-unused-llm-layers
   for name in ema3 event; do
-    for seed in 1000 1001 1002 1003 1004 1005; do
-      trivla-drake evaluate --policy "$RUNS/${name}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
-          --json > "results/grasp_emphasis/${name}_seed$seed.json"
-    done
+    six_seeds "$RUNS/${name}_export" "results/grasp_emphasis/${name}"
     trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/grasp_emphasis/grasps_$name.md"
   done
   for seed in 1003 1004; do
@@ -466,10 +450,7 @@ if [[ "${TAKEOVER:-0}" == 1 ]]; then
     trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
         --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
     trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
-    for seed in 1000 1001 1002 1003 1004 1005; do
-      trivla-drake evaluate --policy "$RUNS/${name}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
-          --json > "results/policy_takeover/${name}_seed$seed.json"
-    done
+    six_seeds "$RUNS/${name}_export" "results/policy_takeover/${name}"
     trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/policy_takeover/grasps_$name.md"
   }
   TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
@@ -513,10 +494,7 @@ if [[ "${SUBGOALS:-0}" == 1 ]]; then
       --init "$RUNS/rebind/final" --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset \
       --ema-decay 0.999
   trivla-drake export "$RUNS/rebind_follow/final" --out "$RUNS/rebind_export" --drop-unused-llm-layers
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/rebind_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/subgoal_diagnostics/rebind/rebind_seed$seed.json"
-  done
+  six_seeds "$RUNS/rebind_export" "results/subgoal_diagnostics/rebind/rebind"
   trivla-drake probe --checkpoint "$RUNS/rebind_export" --grasp-episodes 6 > results/subgoal_diagnostics/rebind/grasps_rebind.md
 fi
 # 28. Optional (SUBCELL=1; results/subcell_dense/): System 2 trained afresh (1800 steps) with the dense loss on
@@ -541,8 +519,5 @@ if [[ "${SUBCELL:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow" --init "$RUNS/sub4_bind/final" \
       --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-unused-llm-layers
-  for seed in 1000 1001 1002 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/sub4_export" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/subcell_dense/sub4_seed$seed.json"
-  done
+  six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
 fi
