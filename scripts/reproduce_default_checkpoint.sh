@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 14 hours without the optional blocks, and 1 h more for step 26;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 18 hours without the optional blocks;
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -357,19 +357,21 @@ done
 #     step 21's model followed 2500 steps more with its settings and a moving average of the weights
 #     (--ema-decay 0.999), exported twice (the average, shipped, and the trained weights, to compare);
 #     both on every task from the start posture and after a one-task prelude; the shipped one's tables,
-#     three more seeds, 40 more chains and every task after a two-task prelude.
+#     three more seeds, 40 more chains and every task after a two-task prelude. This model was models/trivla_cpu
+#     from session 22 to 26 (step 29 ships its successor); steps 23-28 call it $MORE_EMA.
 MORE_DATA=${MORE_DATA:-$DATA-prelude-more}
+MORE_EMA=${MORE_EMA:-$RUNS/more_ema_export}
 [[ -d "$MORE_DATA" ]] || cp -r "$PRELUDE_DATA" "$MORE_DATA"
 trivla-drake collect --out "$MORE_DATA" --episodes-per-task 65 --prelude-tasks 4 --workers 2
 trivla-drake collect --out "$MORE_DATA" --episodes-per-task 80 --workers 2
 mkdir -p results/more_preludes_ema
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/more_follow" --init "$PRELUDE" \
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
-trivla-drake export "$RUNS/more_follow/final" --out models/trivla_cpu --drop-unused-llm-layers
+trivla-drake export "$RUNS/more_follow/final" --out "$MORE_EMA" --drop-unused-llm-layers
 trivla-drake export "$RUNS/more_follow/final" --out "$RUNS/more_trained_export" --drop-unused-llm-layers \
     --trained-weights
-for model in models/trivla_cpu "$RUNS/more_trained_export"; do
-  name=$([[ "$model" == models/trivla_cpu ]] && echo ema || echo trained)
+for model in "$MORE_EMA" "$RUNS/more_trained_export"; do
+  name=$([[ "$model" == "$MORE_EMA" ]] && echo ema || echo trained)
   for seed in 1000 1001 1002; do
     trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
         --json > "results/more_preludes_ema/${name}_prelude1_seed$seed.json"
@@ -378,27 +380,27 @@ for model in models/trivla_cpu "$RUNS/more_trained_export"; do
   done
 done
 for seed in 1003 1004; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+  trivla-drake evaluate --policy "$MORE_EMA" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
       --json > "results/more_preludes_ema/ema_chains20_seed$seed.json"
 done
 for seed in 1003 1004 1005; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+  trivla-drake evaluate --policy "$MORE_EMA" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/more_preludes_ema/ema_seed$seed.json"
 done
-trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
+trivla-drake evaluate --policy "$MORE_EMA" --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
     > results/more_preludes_ema/ema_prelude2_seed1000.json
-trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+trivla-drake tables --full "$MORE_EMA" --episodes 2 --chains 3 --workers 2 \
     --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
 # 23. Optional (CHUNKS=1; results/chunk_execution/): the shipped model replanning every 5 control steps, with and
 #     without ACT's temporal ensembling, and a second moving-average follow run (lr 1.5e-4, seed 2).
 if [[ "${CHUNKS:-0}" == 1 ]]; then
   mkdir -p results/chunk_execution
-  six_seeds models/trivla_cpu "results/chunk_execution/k5" --execute-steps 5
+  six_seeds "$MORE_EMA" "results/chunk_execution/k5" --execute-steps 5
   for seed in 1000 1001 1002; do
-    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
+    trivla-drake evaluate --policy "$MORE_EMA" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
         --execute-steps 5 --ensemble-decay 0.1 > "results/chunk_execution/k5e_seed$seed.json"
   done
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema2_follow" --init models/trivla_cpu \
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema2_follow" --init "$MORE_EMA" \
       --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/ema2_follow/final" --out "$RUNS/ema2_export" --drop-unused-llm-layers
   six_seeds "$RUNS/ema2_export" "results/chunk_execution/ema2"
@@ -415,7 +417,7 @@ if [[ "${EMPHASIS:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/ema3_follow" --init "$RUNS/ema2_export" \
       --grounding-phase follow --lr 1e-4 --steps 2500 --seed 3 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/ema3_follow/final" --out "$RUNS/ema3_export" --drop-unused-llm-layers
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/event_follow" --init models/trivla_cpu \
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/event_follow" --init "$MORE_EMA" \
       --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999 \
       --gripper-event-weight 3 --gripper-event-window 0.5
   trivla-drake export "$RUNS/event_follow/final" --out "$RUNS/event_export" --drop-unused-llm-layers
@@ -447,14 +449,14 @@ if [[ "${TAKEOVER:-0}" == 1 ]]; then
         --takeover "$driver" --workers 2
     trivla-drake collect --out "$data" --episodes-per-task "$6" \
         --tasks rotate_block_left,rotate_block_right,unstack_block --takeover "$driver" --workers 2
-    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init "$MORE_EMA" \
         --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
     trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
     six_seeds "$RUNS/${name}_export" "results/policy_takeover/${name}"
     trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/policy_takeover/grasps_$name.md"
   }
   TAKEOVER_DATA=${TAKEOVER_DATA:-$DATA-takeover}
-  takeover_round takeover "$MORE_DATA" "$TAKEOVER_DATA" models/trivla_cpu 120 100
+  takeover_round takeover "$MORE_DATA" "$TAKEOVER_DATA" "$MORE_EMA" 120 100
   takeover_round takeover2 "$TAKEOVER_DATA" "${TAKEOVER2_DATA:-$DATA-takeover2}" "$RUNS/takeover_export" 160 120
 fi
 # 26. The shipped model's ablation arms (results/shipped_ablation/; the tables in results/ with them): the shipped
@@ -463,13 +465,13 @@ fi
 #     sub-goal offset, which read System 2). The 1+3 arm reads System 3's features from the shipped model's
 #     feature cache (borrowed, not computed). Exported, the tables again (the full model's evaluations are
 #     reused from results/evaluations/) and three more evaluation seeds of each arm.
-ARM_POLICY=(train --stage policy --data "$MORE_DATA" --init models/trivla_cpu --feature-stride 3 --lr 3e-4 \
+ARM_POLICY=(train --stage policy --data "$MORE_DATA" --init "$MORE_EMA" --feature-stride 3 --lr 3e-4 \
     --steps 2500 --seed 1 --ema-decay 0.999 --threads 2)
 trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s1" --no-system2 --no-system3
 trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s13" --no-system2
 trivla-drake export "$RUNS/arm_s1/final" --out "$RUNS/arm_s1_export"
 trivla-drake export "$RUNS/arm_s13/final" --out "$RUNS/arm_s13_export"
-trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
+trivla-drake tables --full "$MORE_EMA" --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
     --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
 mkdir -p results/shipped_ablation
 for arm in s1 s13; do
@@ -488,7 +490,7 @@ if [[ "${SUBGOALS:-0}" == 1 ]]; then
         results/subgoal_diagnostics
   done
   trivla-drake "${GROUNDED_POLICY[@]}" --data "${TAKEOVER2_DATA:-$DATA-takeover2}" --out "$RUNS/rebind" \
-      --init models/trivla_cpu --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 \
+      --init "$MORE_EMA" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 \
       --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64
   trivla-drake "${GROUNDED_POLICY[@]}" --data "${TAKEOVER2_DATA:-$DATA-takeover2}" --out "$RUNS/rebind_follow" \
       --init "$RUNS/rebind/final" --grounding-phase follow --lr 1.5e-4 --steps 2500 --seed 2 --subgoal-offset \
@@ -497,27 +499,45 @@ if [[ "${SUBGOALS:-0}" == 1 ]]; then
   six_seeds "$RUNS/rebind_export" "results/subgoal_diagnostics/rebind/rebind"
   trivla-drake probe --checkpoint "$RUNS/rebind_export" --grasp-episodes 6 > results/subgoal_diagnostics/rebind/grasps_rebind.md
 fi
-# 28. Optional (SUBCELL=1; results/subcell_dense/): System 2 trained afresh (1800 steps) with the dense loss on
-#     4 x 4 sub-cells of each token's image cell, probed against the shipped System 2; swapped into the shipped
-#     model (--system2-from: only its Q_vl is cached, System 3's features are copied from the shipped model's
+# 28. results/subcell_dense/ (the start of step 29): System 2 trained afresh (1800 steps) with the dense loss on
+#     4 x 4 sub-cells of each token's image cell, probed against step 22's System 2; swapped into step 22's
+#     model (--system2-from: only its Q_vl is cached, System 3's features are copied from that model's
 #     cache), the grounding bound again on MORE_DATA and checked, System 1 followed; export, six seeds.
-if [[ "${SUBCELL:-0}" == 1 ]]; then
-  mkdir -p results/subcell_dense
-  trivla-drake train --stage vlm --out "$RUNS/vlm_sub4" --preset cpu --steps 1800 --threads 2 --dense-weight 1 \
-      --dense-subcells 4
-  "${PYTHON:-python}" results/subcell_dense/s2_probe.py models/trivla_cpu "$MORE_DATA" 360 1500 \
-      results/subcell_dense/probe_shipped.json
-  "${PYTHON:-python}" results/subcell_dense/s2_probe.py models/trivla_cpu "$MORE_DATA" 360 1500 \
-      results/subcell_dense/probe_shipped_patches.json patches
-  "${PYTHON:-python}" results/subcell_dense/s2_probe.py "$RUNS/vlm_sub4/final" "$MORE_DATA" 360 1500 \
-      results/subcell_dense/probe_sub4.json
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_bind" --init models/trivla_cpu \
-      --system2-from "$RUNS/vlm_sub4/final" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 \
-      --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 --subgoal-offset
-  trivla-drake probe --checkpoint "$RUNS/sub4_bind/final" --grounding-scenes 20 --threads 2 \
-      > results/subcell_dense/grounding_check_sub4_bind.md
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow" --init "$RUNS/sub4_bind/final" \
-      --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
-  trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-unused-llm-layers
-  six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
-fi
+mkdir -p results/subcell_dense
+trivla-drake train --stage vlm --out "$RUNS/vlm_sub4" --preset cpu --steps 1800 --threads 2 --dense-weight 1 \
+    --dense-subcells 4
+"${PYTHON:-python}" results/subcell_dense/s2_probe.py "$MORE_EMA" "$MORE_DATA" 360 1500 \
+    results/subcell_dense/probe_shipped.json
+"${PYTHON:-python}" results/subcell_dense/s2_probe.py "$MORE_EMA" "$MORE_DATA" 360 1500 \
+    results/subcell_dense/probe_shipped_patches.json patches
+"${PYTHON:-python}" results/subcell_dense/s2_probe.py "$RUNS/vlm_sub4/final" "$MORE_DATA" 360 1500 \
+    results/subcell_dense/probe_sub4.json
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_bind" --init "$MORE_EMA" \
+    --system2-from "$RUNS/vlm_sub4/final" --grounding-phase bind --keep-grounding --lr 1e-3 --warmup-steps 1 \
+    --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 --subgoal-offset
+trivla-drake probe --checkpoint "$RUNS/sub4_bind/final" --grounding-scenes 20 --threads 2 \
+    > results/subcell_dense/grounding_check_sub4_bind.md
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow" --init "$RUNS/sub4_bind/final" \
+    --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
+trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-unused-llm-layers
+six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
+# 29. The shipped checkpoint (results/subcell_follow/): step 28's model followed 5000 steps more with its settings
+#     (seed 2), so that System 1 adapts on every task to the new System 2's Q_vl; exported as models/trivla_cpu,
+#     six seeds, its tables with step 26's ablation arms (those are step 22's model without the systems), 40 more
+#     chains, every task after a one-task prelude, and the grasps.
+mkdir -p results/subcell_follow
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow2" --init "$RUNS/sub4_follow/final" \
+    --grounding-phase follow --lr 3e-4 --steps 5000 --seed 2 --subgoal-offset --ema-decay 0.999
+trivla-drake export "$RUNS/sub4_follow2/final" --out models/trivla_cpu --drop-unused-llm-layers
+six_seeds models/trivla_cpu "results/subcell_follow/follow2"
+trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
+    --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+for seed in 1003 1004; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+      --json > "results/subcell_follow/follow2_chains20_seed$seed.json"
+done
+for seed in 1000 1001 1002; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
+      --json > "results/subcell_follow/follow2_prelude1_seed$seed.json"
+done
+trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subcell_follow/grasps_follow2.md

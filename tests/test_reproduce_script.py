@@ -44,7 +44,9 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
 
 
 def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
-    """models/trivla_cpu: follow (weight average) on more chain-prelude demonstrations <- the export of
+    """models/trivla_cpu: a longer follow (weight average) <- follow <- bind (keeping the grounding) on step
+    22's model with a System 2 trained afresh with the sub-cell dense loss <- the export of step 22's
+    follow (weight average) on more chain-prelude demonstrations <- the export of
     follow on the chain-prelude demonstrations <- the export of follow (with the
     sub-goal offset) <- bind further on the DART demonstrations (keeping the grounding) <- bind <- joint
     (grounding, token positions) <- System 2 with the dense loss <- the export of the plain recipe's
@@ -59,7 +61,20 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
 
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
     assert "--drop-unused-llm-layers" in export and "--trained-weights" not in export
-    more = run_writing(export[1].removesuffix("/final"))
+    longer = run_writing(export[1].removesuffix("/final"))
+    sub4_follow = run_writing(option(longer, "--init").removesuffix("/final"))
+    sub4_bind = run_writing(option(sub4_follow, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase") for a in (longer, sub4_follow, sub4_bind)] == ["follow", "follow", "bind"]
+    assert "--keep-grounding" in sub4_bind and "--system2-from" not in longer + sub4_follow
+    assert all(float(option(a, "--ema-decay")) > 0 and "--subgoal-offset" in a for a in (longer, sub4_follow))
+    assert int(option(longer, "--steps")) == 5000 and option(longer, "--data") == option(sub4_bind, "--data")
+    vlm_sub4 = run_writing(option(sub4_bind, "--system2-from").removesuffix("/final"))
+    assert option(vlm_sub4, "--stage") == "vlm" and option(vlm_sub4, "--dense-subcells") == "4"
+    assert "--init" not in vlm_sub4  # System 2 from scratch
+    more_export = run_writing(option(sub4_bind, "--init"))
+    assert more_export[0] == "export" and "--drop-unused-llm-layers" in more_export
+    assert "--trained-weights" not in more_export
+    more = run_writing(more_export[1].removesuffix("/final"))
     assert float(option(more, "--ema-decay")) > 0
     prelude_export = run_writing(option(more, "--init"))
     assert prelude_export[0] == "export" and "--drop-unused-llm-layers" in prelude_export
