@@ -465,21 +465,28 @@ fi
 #     sub-goal offset, which read System 2). The 1+3 arm reads System 3's features from the shipped model's
 #     feature cache (borrowed, not computed). Exported, the tables again (the full model's evaluations are
 #     reused from results/evaluations/) and three more evaluation seeds of each arm.
-ARM_POLICY=(train --stage policy --data "$MORE_DATA" --init "$MORE_EMA" --feature-stride 3 --lr 3e-4 \
-    --steps 2500 --seed 1 --ema-decay 0.999 --threads 2)
-trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s1" --no-system2 --no-system3
-trivla-drake "${ARM_POLICY[@]}" --out "$RUNS/arm_s13" --no-system2
-trivla-drake export "$RUNS/arm_s1/final" --out "$RUNS/arm_s1_export"
-trivla-drake export "$RUNS/arm_s13/final" --out "$RUNS/arm_s13_export"
-trivla-drake tables --full "$MORE_EMA" --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
-    --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
-mkdir -p results/shipped_ablation
-for arm in s1 s13; do
-  for seed in 1003 1004 1005; do
-    trivla-drake evaluate --policy "$RUNS/arm_${arm}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
-        --json > "results/shipped_ablation/arm_${arm}_seed$seed.json"
+# ablation_arms MODEL NAME DIR: RUNS/NAME_s1 and RUNS/NAME_s13 (MODEL without Systems 2 and 3 / without System 2,
+# System 1 going on from MODEL's weights), their exports RUNS/NAME_s1_export and RUNS/NAME_s13_export, MODEL's
+# tables with them in results/, and three more seeds of each arm in DIR/NAME_ARM_seedS.json.
+ablation_arms() {
+  local policy=(train --stage policy --data "$MORE_DATA" --init "$1" --feature-stride 3 --lr 3e-4 --steps 2500 --seed 1
+                --ema-decay 0.999 --threads 2)
+  trivla-drake "${policy[@]}" --out "$RUNS/$2_s1" --no-system2 --no-system3
+  trivla-drake "${policy[@]}" --out "$RUNS/$2_s13" --no-system2
+  trivla-drake export "$RUNS/$2_s1/final" --out "$RUNS/$2_s1_export"
+  trivla-drake export "$RUNS/$2_s13/final" --out "$RUNS/$2_s13_export"
+  trivla-drake tables --full "$1" --system1-3 "$RUNS/$2_s13_export" --system1 "$RUNS/$2_s1_export" \
+      --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
+  mkdir -p "$3"
+  local arm seed
+  for arm in s1 s13; do
+    for seed in 1003 1004 1005; do
+      trivla-drake evaluate --policy "$RUNS/$2_${arm}_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
+          --json > "$3/$2_${arm}_seed$seed.json"
+    done
   done
-done
+}
+ablation_arms "$MORE_EMA" arm results/shipped_ablation
 # 27. Optional (SUBGOALS=1; results/subgoal_diagnostics/): System 1 given the oracle's grasp position, or its first
 #     prediction latched, as its sub-goal (two diagnostic scripts kept there); and the shipped model's grounding
 #     bound again on step 25's round-2 data (the policy's own approaches), then followed; export, six seeds, grasps.
@@ -523,8 +530,9 @@ trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-u
 six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
 # 29. The shipped checkpoint (results/subcell_follow/): step 28's model followed 5000 steps more with its settings
 #     (seed 2), so that System 1 adapts on every task to the new System 2's Q_vl; exported as models/trivla_cpu,
-#     six seeds, its tables with step 26's ablation arms (those are step 22's model without the systems), 40 more
-#     chains, every task after a one-task prelude, and the grasps.
+#     six seeds, its tables first with step 26's ablation arms (step 22's model without the systems), 40 more
+#     chains, every task after a one-task prelude, the grasps; then its own arms (as step 26's, from it) and the
+#     tables again with them (the full model's evaluations are reused), and three more seeds of each arm.
 mkdir -p results/subcell_follow
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow2" --init "$RUNS/sub4_follow/final" \
     --grounding-phase follow --lr 3e-4 --steps 5000 --seed 2 --subgoal-offset --ema-decay 0.999
@@ -541,3 +549,4 @@ for seed in 1000 1001 1002; do
       --json > "results/subcell_follow/follow2_prelude1_seed$seed.json"
 done
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subcell_follow/grasps_follow2.md
+ablation_arms models/trivla_cpu arm2 results/subcell_follow
