@@ -531,7 +531,7 @@ six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
 # 29. The shipped checkpoint (results/subcell_follow/): step 28's model followed 5000 steps more with its settings
 #     (seed 2), so that System 1 adapts on every task to the new System 2's Q_vl; exported as models/trivla_cpu,
 #     six seeds, its tables first with step 26's ablation arms (step 22's model without the systems), 40 more
-#     chains, every task after a one-task prelude, the grasps; then its own arms (as step 26's, from it) and the
+#     chains, every task after a one- and a two-task prelude, the grasps; then its own arms (as step 26's, from it) and the
 #     tables again with them (the full model's evaluations are reused), and three more seeds of each arm.
 mkdir -p results/subcell_follow
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow2" --init "$RUNS/sub4_follow/final" \
@@ -548,5 +548,7 @@ for seed in 1000 1001 1002; do
   trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
       --json > "results/subcell_follow/follow2_prelude1_seed$seed.json"
 done
+trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
+    > results/subcell_follow/follow2_prelude2_seed1000.json
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subcell_follow/grasps_follow2.md
 ablation_arms models/trivla_cpu arm2 results/subcell_follow
