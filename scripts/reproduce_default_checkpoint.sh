@@ -530,16 +530,14 @@ trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-u
 six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
 # 29. The shipped checkpoint (results/subcell_follow/): step 28's model followed 5000 steps more with its settings
 #     (seed 2), so that System 1 adapts on every task to the new System 2's Q_vl; exported as models/trivla_cpu,
-#     six seeds, its tables first with step 26's ablation arms (step 22's model without the systems), 40 more
-#     chains, every task after a one- and a two-task prelude, the grasps; then its own arms (as step 26's, from it) and the
-#     tables again with them (the full model's evaluations are reused), and three more seeds of each arm.
+#     six seeds, 40 more chains, every task after a one- and a two-task prelude, the grasps; then its own ablation
+#     arms (as step 26's, from it), its tables with them, and three more seeds of each arm. (The session ran the
+#     tables once before with step 26's arms; the stored evaluations make that run's other rows the same.)
 mkdir -p results/subcell_follow
 trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follow2" --init "$RUNS/sub4_follow/final" \
     --grounding-phase follow --lr 3e-4 --steps 5000 --seed 2 --subgoal-offset --ema-decay 0.999
 trivla-drake export "$RUNS/sub4_follow2/final" --out models/trivla_cpu --drop-unused-llm-layers
 six_seeds models/trivla_cpu "results/subcell_follow/follow2"
-trivla-drake tables --full models/trivla_cpu --system1-3 "$RUNS/arm_s13_export" --system1 "$RUNS/arm_s1_export" \
-    --episodes 2 --chains 3 --workers 2 --latency-tasks rotate_block_left,turn_off_light,unstack_block --out results
 for seed in 1003 1004; do
   trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
       --json > "results/subcell_follow/follow2_chains20_seed$seed.json"

@@ -10,6 +10,7 @@ from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.eval.feature_probe import first_frame_block_positions, first_frames, ridge_probe
 from trivla_drake.eval.attention_probe import attention_probe
 from trivla_drake.nn import load_checkpoint
+from trivla_drake.nn.vision_language import images_to_siglip_input
 from trivla_drake.train.datasets import resize_frames
 
 torch.set_num_threads(2)
@@ -34,7 +35,6 @@ with torch.inference_mode():
         q, _ = model.encode_vision_language_batch(s, w, [reader.task_of(e) for e in eps[s0:s0+16]])
         qs, qw = q[:, head:head+k], q[:, head+k+sep:head+2*k+sep]
         if patches:
-            from trivla_drake.nn.vision_language import images_to_siglip_input
             feats["siglip_patches_static"].append(vl.vision_encoder(pixel_values=images_to_siglip_input(s, torch.float32)).last_hidden_state)
             continue
         feats["projector_static"].append(vl.encode_images(s))
