@@ -83,6 +83,18 @@ def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints,
     assert sorted((out / "evaluations").glob("*.json")) == stored
     third = _tables(checkpoints, out, "--no-reuse")
     assert third["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0
+    elsewhere = out.parent / (out.name + "_elsewhere")
+    fourth = _tables(checkpoints, elsewhere, "--evaluations", str(out / "evaluations"))
+    assert fourth["main"]["tasks"]["turn_on_light"]["success_rate"] == 1.0  # another report's store, reused
+    assert not (elsewhere / "evaluations").exists() and (elsewhere / "report.md").is_file()
+
+
+def test_evaluations_folder_and_no_reuse_together_are_refused(checkpoints, tmp_path, capsys):
+    from trivla_drake.cli import main
+
+    assert main(["tables", "--full", str(checkpoints["full"]), "--out", str(tmp_path / "t"),
+                 "--evaluations", str(tmp_path / "e"), "--no-reuse"]) == 2
+    assert "--evaluations" in capsys.readouterr().err and not (tmp_path / "t").exists()
 
 
 def test_unknown_latency_task_is_named_before_any_work(checkpoints, tmp_path, capsys):

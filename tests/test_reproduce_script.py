@@ -137,3 +137,33 @@ def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
     for second, first in continued:
         assert option(second, "--fraction") == option(first, "--fraction")
         assert option(second, "--seed", "0") == option(first, "--seed", "0")
+
+
+def test_the_data_efficiency_arm_trains_a_fresh_system1_on_a_tenth_of_the_shipped_models_data(tmp_path):
+    """Step 30: the tables' 10% arm is an export <- follow <- bind (a fresh grounding) <- joint with a fresh
+    System 1 on the shipped model's Systems 2 and 3, on 3 + 5 demonstrations per task (a tenth of the 30 + 50
+    per task the shipped model's last runs trained on, in the same proportions)."""
+    calls = _dry_run(tmp_path)
+
+    def option(argv, name):
+        return argv[argv.index(name) + 1]
+
+    def run_writing(out):
+        return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
+
+    tables = next(argv for argv in calls if argv[0] == "tables" and "--data10" in argv
+                  and option(argv, "--full") == "models/trivla_cpu")
+    export = run_writing(option(tables, "--data10"))
+    follow = run_writing(export[1].removesuffix("/final"))
+    bind = run_writing(option(follow, "--init").removesuffix("/final"))
+    joint = run_writing(option(bind, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint"
+            for a in (follow, bind, joint)] == ["follow", "bind", "joint"]
+    assert "--fresh-system1" in joint and option(joint, "--init") == "models/trivla_cpu"
+    assert "--keep-grounding" not in bind and not any("--fresh-system1" in a for a in (follow, bind))
+    assert option(follow, "--data") == option(bind, "--data") == option(joint, "--data")
+
+    collected = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(joint, "--data")]
+    # collect's --episodes-per-task counts the folder's episodes so far: 3 from the start posture, then up to 8
+    # with a prelude (MORE_DATA has 30 and 50 per task: results/more_preludes_ema/)
+    assert [(int(option(a, "--episodes-per-task")), "--prelude-tasks" in a) for a in collected] == [(3, False), (8, True)]

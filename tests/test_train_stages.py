@@ -573,3 +573,26 @@ def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, t
         train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "missing"), steps=1,
                           init=runs["policy"]["final_checkpoint"], system2_from=str(tmp_path / "nowhere"),
                           **runs["common"]))
+
+
+def test_fresh_system1_trains_a_new_system1_on_the_init_models_systems_2_and_3(runs, tmp_path):
+    """--fresh-system1: System 1 drawn anew from --seed (not --init's), Systems 2 and 3 kept as --init has
+    them; the same seed draws the same System 1."""
+    init = load_checkpoint(runs["policy"]["final_checkpoint"])
+    common = {**runs["common"], "lr": 1e-12, "warmup_steps": 1}
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "fresh"), steps=1, seed=5,
+                                init=runs["policy"]["final_checkpoint"], fresh_system1=True, **common))
+    model = load_checkpoint(summary["final_checkpoint"])
+    assert _same(_weights(model, "vision_language."), _weights(init, "vision_language."))
+    assert _same(_weights(model, "dynamics."), _weights(init, "dynamics."))
+    expected = load_checkpoint(runs["policy"]["final_checkpoint"])
+    expected.reset_system1(5)
+    trained, drawn, old = (dict(m.policy.named_parameters()) for m in (model, expected, init))
+    assert trained.keys() == drawn.keys() == old.keys()
+    assert all(torch.allclose(trained[k], drawn[k], atol=1e-6) for k in trained)  # one step at lr 1e-12
+    assert not all(torch.allclose(trained[k], old[k], atol=1e-3) for k in trained)
+    other = load_checkpoint(runs["policy"]["final_checkpoint"])
+    other.reset_system1(6)
+    assert not _same(_weights(other, "policy."), _weights(expected, "policy."))
+    with pytest.raises(ValueError, match="fresh_system1.*needs --stage policy, --init and --grounding-phase joint"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"), fresh_system1=True).resolved().validate()

@@ -146,6 +146,8 @@ def _names(comma_separated: str) -> list[str]:
 def _cmd_tables(args) -> int:
     from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
 
+    if args.evaluations and args.no_reuse:
+        raise ValueError("--evaluations names a folder of evaluations to reuse, and --no-reuse reuses none: pass one")
     checkpoints = {role: path for role, path in (("full", args.full), ("system1_3", args.system1_3),
                                                  ("system1", args.system1), ("data10", args.data10)) if path}
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
@@ -153,7 +155,7 @@ def _cmd_tables(args) -> int:
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
                           noise_scale=args.noise_scale, execute_steps=args.execute_steps,
                           ensemble_decay=args.ensemble_decay, threads=args.threads,
-                          results_dir=None if args.no_reuse else str(Path(args.out) / "evaluations"))
+                          results_dir=None if args.no_reuse else (args.evaluations or str(Path(args.out) / "evaluations")))
     if args.tasks != "all":
         config.tasks = _names(args.tasks)
     if args.latency_tasks:
@@ -292,6 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--no-reuse", action="store_true",
                         help="do not store or reuse evaluations in OUT/evaluations/ (default: reuse, so a "
                              "killed or extended run redoes only what is missing)")
+    tables.add_argument("--evaluations", default=None, metavar="DIR",
+                        help="folder of stored evaluations to reuse and add to (default OUT/evaluations/), e.g. "
+                             "another report's, so a report with one more checkpoint reruns only that one's")
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
 

@@ -48,6 +48,11 @@ def stream_generator(seed: int, stream: int) -> torch.Generator:
     return torch.Generator().manual_seed((int(seed) * 1_000_003 + stream) % (2**63 - 1))
 
 
+def _cuda_devices() -> list[int]:
+    """The CUDA devices whose generators a seeded initialisation forks (none without CUDA)."""
+    return list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
+
+
 class TriVLA(nn.Module):
     """TriVLA: System 2 gives Q_vl, System 3 gives F_p per view, System 1 turns Q_vl, Q_p and Q_s into a
     (10, 7) action chunk by flow matching. `config.use_system2/3 = False` drops a system (Table 4)."""
@@ -69,8 +74,7 @@ class TriVLA(nn.Module):
         self.config = config
         tokenizers = tokenizers or {}
         components = component_configs or {}
-        cuda_devices = list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
-        with torch.random.fork_rng(devices=cuda_devices):  # seeded initialisation, global RNGs restored
+        with torch.random.fork_rng(devices=_cuda_devices()):  # seeded initialisation, global RNGs restored
             torch.manual_seed(config.init_seed)
             self.vision_language: VisionLanguageModule | None = None
             self.dynamics: DynamicsPerceptionModule | None = None
@@ -88,12 +92,7 @@ class TriVLA(nn.Module):
                 self.dynamics = DynamicsPerceptionModule.from_config(
                     dyn, tok, component_configs=components.get("dynamics"), load_pretrained=load_pretrained
                 )
-            self.policy = FlowMatchingPolicy(
-                config.policy,
-                vl_dim=self.vision_language.hidden_size if self.vision_language else None,
-                dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
-                vl_fixed_positions=self.vision_language.instruction_offset(2) if self.vision_language else 0,
-            )
+            self.policy = self._new_policy()
         pol = config.policy
         stats = normalization or NormalizationStats.identity(pol.state_dim, pol.action_dim)
         stats.check_dims(pol.state_dim, pol.action_dim)
@@ -102,6 +101,23 @@ class TriVLA(nn.Module):
         self.image_size = (
             self.vision_language.image_size if self.vision_language else config.vision_language.vision.image_size
         )
+
+    def _new_policy(self) -> FlowMatchingPolicy:
+        """A System 1 for this model's config and Systems 2 / 3, drawn from torch's global generator."""
+        return FlowMatchingPolicy(
+            self.config.policy,
+            vl_dim=self.vision_language.hidden_size if self.vision_language else None,
+            dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
+            vl_fixed_positions=self.vision_language.instruction_offset(2) if self.vision_language else 0,
+        )
+
+    def reset_system1(self, seed: int) -> None:
+        """Replaces System 1 by a fresh one initialised from `seed` (the global RNGs are left untouched),
+        keeping Systems 2 and 3: System 1 trained from scratch on pretrained Systems 2 / 3."""
+        device = self.device
+        with torch.random.fork_rng(devices=_cuda_devices()):
+            torch.manual_seed(seed)
+            self.policy = self._new_policy().to(device)
 
     # ------------------------------------------------------------------ bookkeeping
 

@@ -74,6 +74,7 @@ def config_from_args(args: argparse.Namespace):
         subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
         system2_from=args.system2_from,
+        fresh_system1=args.fresh_system1,
         grounding_reads_tcp=args.grounding_reads_tcp,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
@@ -202,6 +203,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy, with --init: replace --init's System 2 by this checkpoint's (e.g. one "
                              "retrained with --stage vlm), keeping System 1 and 3; its features are cached anew "
                              "(System 3's copied from the cache of --init's model)")
+    parser.add_argument("--fresh-system1", action="store_true",
+                        help="policy, with --init: train a fresh System 1 (drawn from --seed) on --init's Systems 2 "
+                             "and 3, keeping its System 1 options (e.g. the 10%%-data arm of the tables)")
     parser.add_argument("--grounding-reads-tcp", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
                              "point's features, to place its sub-goal from the wrist view (added when --init's "

@@ -187,6 +187,10 @@ class TrainConfig:
     # retrained by the vlm stage), keeping System 1 and System 3; the feature statistics are fitted
     # again, so not in a follow run, which keeps its bind run's (results/subcell_dense).
     system2_from: str | None = None
+    # policy stage, with --init: a fresh System 1 (drawn from `seed`) on the --init model's Systems 2 and 3,
+    # with its options (grounding, sub-goal offset, ...): System 1 trained from scratch on frozen
+    # pretrained Systems 2 / 3, as the 10%-data arm of Table 1 is (results/data_efficiency).
+    fresh_system1: bool = False
     # policy stage, with a grounding: the grounding also reads the tool-centre point's features
     # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
     # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
@@ -294,6 +298,10 @@ class TrainConfig:
         if self.keep_grounding and not (self.grounding_phase == "bind" and self.init):
             raise ValueError("keep_grounding (--keep-grounding) continues the grounding of a --init checkpoint in a "
                              "bind run: it needs --grounding-phase bind and --init")
+        if self.fresh_system1 and not (self.stage == "policy" and self.init and self.grounding_phase == "joint"):
+            raise ValueError("fresh_system1 (--fresh-system1) trains a new System 1 on the Systems 2 / 3 of a --init "
+                             "model: it needs --stage policy, --init and --grounding-phase joint (bind and follow "
+                             "go on from a System 1 that has learnt something)")
         if self.system2_from is not None:
             if not (self.stage == "policy" and self.init and self.use_system2):
                 raise ValueError("system2_from (--system2-from) replaces the System 2 of a --init model in the policy "

@@ -219,6 +219,8 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
                                 config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None)
         if config.system2_from is not None:
             model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
+        if config.fresh_system1:
+            model.reset_system1(config.seed)
         if config.grounding_phase == "bind" and not config.keep_grounding:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
