@@ -579,3 +579,9 @@ for seed in 1003 1004 1005; do
   trivla-drake evaluate --policy "$RUNS/data10_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
       --json > "results/data_efficiency/data10_seed$seed.json"
 done
+# Is the arm short of training steps (it had 5700, the shipped System 1 far more)? Its follow run 2500 steps more
+# (as step 29 followed step 28's), exported, on six seeds.
+trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/data10_follow2" --init "$RUNS/data10_follow/final" \
+    --grounding-phase follow --lr 3e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
+trivla-drake export "$RUNS/data10_follow2/final" --out "$RUNS/data10_follow2_export" --drop-unused-llm-layers
+six_seeds "$RUNS/data10_follow2_export" results/data_efficiency/data10_longer

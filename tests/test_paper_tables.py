@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from trivla_drake.eval.paper_tables import TablesConfig
@@ -104,3 +105,30 @@ def test_unknown_latency_task_is_named_before_any_work(checkpoints, tmp_path, ca
                  "--latency-tasks", "lift_block,juggle"]) == 2
     assert "unknown task 'juggle'" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()
+
+
+def test_the_10_percent_arm_gets_its_column_row_and_bars(tmp_path):
+    """With a data10 checkpoint the report shows its per-task success beside the full model's, the data
+    efficiency rows with their standard errors, and a third bar series in the per-task plot."""
+    from trivla_drake.eval.paper_tables import format_tables, plot_tables
+
+    def result(rate):
+        return {"tasks": {"lift_block": {"success_rate": rate, "stderr": 0.1},
+                          "open_drawer": {"success_rate": 1.0, "stderr": 0.0}},
+                "average_success": (rate + 1.0) / 2, "average_stderr": 0.05}
+
+    report = {"main": result(0.5), "paraphrases": result(0.0), "ablation": [], "data10": result(0.25),
+              "data_efficiency": {"100%": 0.75, "100%_stderr": 0.05, "10%": 0.625, "10%_stderr": 0.05},
+              "latency": {"latency off": {"success_rate": 1.0, "control_hz": 30.0}}}
+    text = format_tables(report)
+    assert "| task | success | held-out paraphrases | 10% of the demonstrations |" in text
+    assert "| lift_block | 0.50 ± 0.10 | 0.00 ± 0.10 | 0.25 ± 0.10 |" in text
+    assert "| 10% | 0.62 ± 0.05 |" in text and "| 100% | 0.75 ± 0.05 |" in text
+    plot_tables(report, tmp_path)
+    import matplotlib.image
+
+    with_arm = matplotlib.image.imread(tmp_path / "per_task_success.png")
+    del report["data10"], report["data_efficiency"]
+    assert "10% of the demonstrations" not in format_tables(report)
+    plot_tables(report, tmp_path)
+    assert not np.array_equal(with_arm, matplotlib.image.imread(tmp_path / "per_task_success.png"))

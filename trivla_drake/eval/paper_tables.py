@@ -214,8 +214,11 @@ def make_tables(config: TablesConfig) -> dict:
         report["ablation"].append({k: row[k] for k in ("systems", "params_millions", "latency_ms", "average_success",
                                                       "chain_avg_len", "chain_avg_len_stderr") if k in row})
     if "data10" in ckpt:
+        report["data10"] = _over_seeds(config, ckpt["data10"])
         report["data_efficiency"] = {"100%": report["main"]["average_success"],
-                                     "10%": _over_seeds(config, ckpt["data10"])["average_success"]}
+                                     "100%_stderr": report["main"]["average_stderr"],
+                                     "10%": report["data10"]["average_success"],
+                                     "10%_stderr": report["data10"]["average_stderr"]}
     report["latency"] = _latency_rows(config, ckpt["full"])
     return report
 
@@ -235,14 +238,19 @@ def format_tables(report: dict) -> str:
                      else "")
                   + (f", chunks ensembled with decay {cfg['ensemble_decay']:g}" if cfg.get("ensemble_decay") is not None
                      else "") + ".", ""]
-    lines += ["## Per-task success (mean ± stderr over seeds)", "", "| task | success | held-out paraphrases |",
-              "| --- | --- | --- |"]
+    data10 = report.get("data10")
+    lines += ["## Per-task success (mean ± stderr over seeds)", "",
+              "| task | success | held-out paraphrases |" + (" 10% of the demonstrations |" if data10 else ""),
+              "| --- | --- | --- |" + (" --- |" if data10 else "")]
     for name, row in main["tasks"].items():
         para = report["paraphrases"]["tasks"][name]
         lines.append(f"| {name} | {row['success_rate']:.2f} ± {row['stderr']:.2f} | "
-                     f"{para['success_rate']:.2f} ± {para['stderr']:.2f} |")
+                     f"{para['success_rate']:.2f} ± {para['stderr']:.2f} |"
+                     + (f" {data10['tasks'][name]['success_rate']:.2f} ± {data10['tasks'][name]['stderr']:.2f} |"
+                        if data10 else ""))
     lines.append(f"| **average** | **{main['average_success']:.2f} ± {main['average_stderr']:.2f}** | "
-                 f"{report['paraphrases']['average_success']:.2f} ± {report['paraphrases']['average_stderr']:.2f} |")
+                 f"{report['paraphrases']['average_success']:.2f} ± {report['paraphrases']['average_stderr']:.2f} |"
+                 + (f" {data10['average_success']:.2f} ± {data10['average_stderr']:.2f} |" if data10 else ""))
     if "chain_avg_len" in main:
         lines += ["", f"5-task chains: Avg. Len {main['chain_avg_len']:.2f} ± {main['chain_avg_len_stderr']:.2f}"]
     if report["ablation"]:
@@ -253,8 +261,9 @@ def format_tables(report: dict) -> str:
                          f"{row['average_success']:.2f} | {row['latency_ms']:.1f} | {row['params_millions']:.2f} |")
     if "data_efficiency" in report:
         d = report["data_efficiency"]
-        lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |",
-                  f"| 100% | {d['100%']:.2f} |", f"| 10% | {d['10%']:.2f} |"]
+        lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |"]
+        lines += [f"| {share} | {d[share]:.2f}" + (f" ± {d[share + '_stderr']:.2f}" if share + "_stderr" in d else "")
+                  + " |" for share in ("100%", "10%")]
     lines += ["", "## Latency-aware simulation", "", "| simulation | success | control Hz (sim time) |", "| --- | --- | --- |"]
     for label, row in report["latency"].items():
         lines.append(f"| {label} | {row['success_rate']:.2f} | {row['control_hz']:.1f} |")
@@ -272,9 +281,13 @@ def plot_tables(report: dict, out_dir: Path) -> list[Path]:
     names = list(report["main"]["tasks"])
     fig, ax = plt.subplots(figsize=(10, 4))
     x = np.arange(len(names))
-    for offset, (key, label) in enumerate((("main", "training instructions"), ("paraphrases", "held-out paraphrases"))):
+    series = [("main", "training instructions"), ("paraphrases", "held-out paraphrases")]
+    if "data10" in report:
+        series.append(("data10", "10% of the demonstrations"))
+    width = 0.76 / len(series)
+    for offset, (key, label) in enumerate(series):
         rows = report[key]["tasks"]
-        ax.bar(x + (offset - 0.5) * 0.38, [rows[n]["success_rate"] for n in names], 0.38,
+        ax.bar(x + (offset - (len(series) - 1) / 2) * width, [rows[n]["success_rate"] for n in names], width,
                yerr=[rows[n]["stderr"] for n in names], label=label, capsize=2)
     ax.set_xticks(x, names, rotation=40, ha="right")
     ax.set_ylim(0, 1.05)
