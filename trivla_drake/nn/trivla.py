@@ -114,10 +114,10 @@ class TriVLA(nn.Module):
     def reset_system1(self, seed: int) -> None:
         """Replaces System 1 by a fresh one initialised from `seed` (the global RNGs are left untouched),
         keeping Systems 2 and 3: System 1 trained from scratch on pretrained Systems 2 / 3."""
-        device = self.device
+        old = next(self.policy.parameters())
         with torch.random.fork_rng(devices=_cuda_devices()):
             torch.manual_seed(seed)
-            self.policy = self._new_policy().to(device)
+            self.policy = self._new_policy().to(old.device, old.dtype)
 
     # ------------------------------------------------------------------ bookkeeping
 
