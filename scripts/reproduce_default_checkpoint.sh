@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 18 hours without the optional blocks;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 19.5 hours without the optional blocks;
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
