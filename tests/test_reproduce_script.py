@@ -34,6 +34,16 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     return [shlex.split(line) for line in calls.read_text().splitlines()]
 
 
+def option(argv: list[str], name: str, default: str | None = None) -> str | None:
+    """The value after `name` in one recorded call (`default` where the call has no `name`)."""
+    return argv[argv.index(name) + 1] if name in argv else default
+
+
+def run_writing(calls: list[list[str]], out: str) -> list[str]:
+    """The train or export call that writes `out`."""
+    return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
+
+
 def test_every_command_of_the_reproduce_script_parses(tmp_path):
     calls = _dry_run(tmp_path)
     parser = build_parser()
@@ -53,45 +63,39 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     9000-step run on the DART demonstrations."""
     calls = _dry_run(tmp_path)
 
-    def option(argv, name):
-        return argv[argv.index(name) + 1]
-
-    def run_writing(out):
-        return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
-
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
     assert "--drop-unused-llm-layers" in export and "--trained-weights" not in export
-    longer = run_writing(export[1].removesuffix("/final"))
-    sub4_follow = run_writing(option(longer, "--init").removesuffix("/final"))
-    sub4_bind = run_writing(option(sub4_follow, "--init").removesuffix("/final"))
+    longer = run_writing(calls, export[1].removesuffix("/final"))
+    sub4_follow = run_writing(calls, option(longer, "--init").removesuffix("/final"))
+    sub4_bind = run_writing(calls, option(sub4_follow, "--init").removesuffix("/final"))
     assert [option(a, "--grounding-phase") for a in (longer, sub4_follow, sub4_bind)] == ["follow", "follow", "bind"]
     assert "--keep-grounding" in sub4_bind and "--system2-from" not in longer + sub4_follow
     assert all(float(option(a, "--ema-decay")) > 0 and "--subgoal-offset" in a for a in (longer, sub4_follow))
     assert int(option(longer, "--steps")) == 5000 and option(longer, "--data") == option(sub4_bind, "--data")
-    vlm_sub4 = run_writing(option(sub4_bind, "--system2-from").removesuffix("/final"))
+    vlm_sub4 = run_writing(calls, option(sub4_bind, "--system2-from").removesuffix("/final"))
     assert option(vlm_sub4, "--stage") == "vlm" and option(vlm_sub4, "--dense-subcells") == "4"
     assert "--init" not in vlm_sub4  # System 2 from scratch
-    more_export = run_writing(option(sub4_bind, "--init"))
+    more_export = run_writing(calls, option(sub4_bind, "--init"))
     assert more_export[0] == "export" and "--drop-unused-llm-layers" in more_export
     assert "--trained-weights" not in more_export
-    more = run_writing(more_export[1].removesuffix("/final"))
+    more = run_writing(calls, more_export[1].removesuffix("/final"))
     assert float(option(more, "--ema-decay")) > 0
-    prelude_export = run_writing(option(more, "--init"))
+    prelude_export = run_writing(calls, option(more, "--init"))
     assert prelude_export[0] == "export" and "--drop-unused-llm-layers" in prelude_export
-    preludes = run_writing(prelude_export[1].removesuffix("/final"))
+    preludes = run_writing(calls, prelude_export[1].removesuffix("/final"))
     collect_more = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(more, "--data")]
-    assert [int(option(a, "--prelude-tasks")) if "--prelude-tasks" in a else 0 for a in collect_more] == [4, 0]
-    curriculum_export = run_writing(option(preludes, "--init"))
+    assert [int(option(a, "--prelude-tasks", 0)) for a in collect_more] == [4, 0]
+    curriculum_export = run_writing(calls, option(preludes, "--init"))
     assert curriculum_export[0] == "export" and "--drop-unused-llm-layers" in curriculum_export
-    follow = run_writing(curriculum_export[1].removesuffix("/final"))
+    follow = run_writing(calls, curriculum_export[1].removesuffix("/final"))
     collect_preludes = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(preludes, "--data")]
-    assert [int(option(a, "--prelude-tasks")) if "--prelude-tasks" in a else 0 for a in collect_preludes] == [0, 4]
+    assert [int(option(a, "--prelude-tasks", 0)) for a in collect_preludes] == [0, 4]
     assert option(preludes, "--grounding-phase") == "follow" and "--subgoal-offset" in preludes
-    curriculum = run_writing(option(follow, "--init").removesuffix("/final"))
-    bind = run_writing(option(curriculum, "--init").removesuffix("/final"))
-    joint = run_writing(option(bind, "--init").removesuffix("/final"))
-    vlm = run_writing(option(joint, "--init").removesuffix("/final"))
-    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint"
+    curriculum = run_writing(calls, option(follow, "--init").removesuffix("/final"))
+    bind = run_writing(calls, option(curriculum, "--init").removesuffix("/final"))
+    joint = run_writing(calls, option(bind, "--init").removesuffix("/final"))
+    vlm = run_writing(calls, option(joint, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase", "joint")
             for a in (follow, curriculum, bind, joint)] == ["follow", "bind", "bind", "joint"]
     assert "--keep-grounding" in curriculum and "--keep-grounding" not in bind
     dart = next(argv for argv in calls if argv[0] == "collect" and "--action-noise" in argv)
@@ -115,9 +119,9 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     assert all("--vl-position-embedding" in a and float(option(a, "--grounding-weight")) > 0
                for a in (more, preludes, follow, curriculum, bind, joint))
     assert option(vlm, "--stage") == "vlm" and float(option(vlm, "--dense-weight")) > 0
-    plain_export = run_writing(option(vlm, "--init"))
-    second = run_writing(plain_export[1].removesuffix("/final"))
-    first = run_writing(option(second, "--init").removesuffix("/final"))
+    plain_export = run_writing(calls, option(vlm, "--init"))
+    second = run_writing(calls, plain_export[1].removesuffix("/final"))
+    first = run_writing(calls, option(second, "--init").removesuffix("/final"))
     assert int(option(first, "--steps")) + int(option(second, "--steps")) == 9000
     collect_dart = next(argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == option(second, "--data"))
     assert "--action-noise" in collect_dart and "--no-tcp-features" not in second
@@ -127,9 +131,6 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
 
 def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
     """--seed also draws the --fraction subset: a continuation with another seed trains on other episodes."""
-    def option(argv, name, default=None):
-        return argv[argv.index(name) + 1] if name in argv else default
-
     runs = {option(argv, "--out"): argv for argv in _dry_run(tmp_path) if argv[0] == "train" and "--fraction" in argv}
     continued = [(argv, runs[option(argv, "--init").removesuffix("/final")]) for argv in runs.values()
                  if option(argv, "--init", "").removesuffix("/final") in runs]
@@ -145,19 +146,13 @@ def test_the_data_efficiency_arm_trains_a_fresh_system1_on_a_tenth_of_the_shippe
     per task the shipped model's last runs trained on, in the same proportions)."""
     calls = _dry_run(tmp_path)
 
-    def option(argv, name):
-        return argv[argv.index(name) + 1]
-
-    def run_writing(out):
-        return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
-
     tables = next(argv for argv in calls if argv[0] == "tables" and "--data10" in argv
                   and option(argv, "--full") == "models/trivla_cpu")
-    export = run_writing(option(tables, "--data10"))
-    follow = run_writing(export[1].removesuffix("/final"))
-    bind = run_writing(option(follow, "--init").removesuffix("/final"))
-    joint = run_writing(option(bind, "--init").removesuffix("/final"))
-    assert [option(a, "--grounding-phase") if "--grounding-phase" in a else "joint"
+    export = run_writing(calls, option(tables, "--data10"))
+    follow = run_writing(calls, export[1].removesuffix("/final"))
+    bind = run_writing(calls, option(follow, "--init").removesuffix("/final"))
+    joint = run_writing(calls, option(bind, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase", "joint")
             for a in (follow, bind, joint)] == ["follow", "bind", "joint"]
     assert "--fresh-system1" in joint and option(joint, "--init") == "models/trivla_cpu"
     assert "--keep-grounding" not in bind and not any("--fresh-system1" in a for a in (follow, bind))

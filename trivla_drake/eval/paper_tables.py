@@ -216,9 +216,7 @@ def make_tables(config: TablesConfig) -> dict:
     if "data10" in ckpt:
         report["data10"] = _over_seeds(config, ckpt["data10"])
         report["data_efficiency"] = {"100%": report["main"]["average_success"],
-                                     "100%_stderr": report["main"]["average_stderr"],
-                                     "10%": report["data10"]["average_success"],
-                                     "10%_stderr": report["data10"]["average_stderr"]}
+                                     "10%": report["data10"]["average_success"]}
     report["latency"] = _latency_rows(config, ckpt["full"])
     return report
 
@@ -259,11 +257,10 @@ def format_tables(report: dict) -> str:
         for row in report["ablation"]:
             lines.append(f"| {row['systems']} | {row.get('chain_avg_len', float('nan')):.2f} | "
                          f"{row['average_success']:.2f} | {row['latency_ms']:.1f} | {row['params_millions']:.2f} |")
-    if "data_efficiency" in report:
-        d = report["data_efficiency"]
+    if data10:
         lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |"]
-        lines += [f"| {share} | {d[share]:.2f}" + (f" ± {d[share + '_stderr']:.2f}" if share + "_stderr" in d else "")
-                  + " |" for share in ("100%", "10%")]
+        lines += [f"| {share} | {result['average_success']:.2f} ± {result['average_stderr']:.2f} |"
+                  for share, result in (("100%", main), ("10%", data10))]
     lines += ["", "## Latency-aware simulation", "", "| simulation | success | control Hz (sim time) |", "| --- | --- | --- |"]
     for label, row in report["latency"].items():
         lines.append(f"| {label} | {row['success_rate']:.2f} | {row['control_hz']:.1f} |")
