@@ -46,7 +46,7 @@ def test_a_grounded_model_gets_its_subgoal_recorded_per_chunk(tmp_path, capsys):
     config = make_config("tiny")
     model = TriVLA(dataclasses.replace(config, policy=dataclasses.replace(config.policy, instruction_grounding=True)))
     policy = TriVLAHarnessPolicy(model.eval())
-    (row,) = grasp_report(policy, episodes_per_task=1, tasks=("stack_block",))
+    (row,) = grasp_report(policy, episodes_per_task=1, tasks=("stack_block",), max_steps=30)
     assert row.first_subgoal_to_block_m is not None and 0 <= row.first_subgoal_to_block_m < 2.0
     assert (row.close_step is None) == (row.close_to_subgoal_m is None)
     # chunks are looked up by the step they start at

@@ -7,9 +7,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from trivla_drake.cli import build_parser
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_default_checkpoint.sh"
+
+
+@pytest.fixture(scope="module")
+def calls(tmp_path_factory) -> list[list[str]]:
+    """Each `trivla-drake` call of one dry run of the script (run once: it records a few hundred calls)."""
+    return _dry_run(tmp_path_factory.mktemp("reproduce"))
 
 
 def _dry_run(tmp_path: Path) -> list[list[str]]:
@@ -44,8 +52,7 @@ def run_writing(calls: list[list[str]], out: str) -> list[str]:
     return next(argv for argv in calls if argv[0] in ("train", "export") and option(argv, "--out") == out)
 
 
-def test_every_command_of_the_reproduce_script_parses(tmp_path):
-    calls = _dry_run(tmp_path)
+def test_every_command_of_the_reproduce_script_parses(calls):
     parser = build_parser()
     for argv in calls:
         parser.parse_args(argv)  # exits (SystemExit) on an unknown flag or a bad value
@@ -53,7 +60,7 @@ def test_every_command_of_the_reproduce_script_parses(tmp_path):
     assert {"collect", "train", "export", "tables", "probe", "evaluate"} <= set(commands)
 
 
-def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(tmp_path):
+def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(calls):
     """models/trivla_cpu: a longer follow (weight average) <- follow <- bind (keeping the grounding) on step
     22's model with a System 2 trained afresh with the sub-cell dense loss <- the export of step 22's
     follow (weight average) on more chain-prelude demonstrations <- the export of
@@ -61,8 +68,6 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     sub-goal offset) <- bind further on the DART demonstrations (keeping the grounding) <- bind <- joint
     (grounding, token positions) <- System 2 with the dense loss <- the export of the plain recipe's
     9000-step run on the DART demonstrations."""
-    calls = _dry_run(tmp_path)
-
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out") == "models/trivla_cpu")
     assert "--drop-unused-llm-layers" in export and "--trained-weights" not in export
     longer = run_writing(calls, export[1].removesuffix("/final"))
@@ -129,9 +134,9 @@ def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run
     assert option(tables, "--out") == "results"
 
 
-def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
+def test_a_fraction_run_continued_from_another_keeps_its_draw(calls):
     """--seed also draws the --fraction subset: a continuation with another seed trains on other episodes."""
-    runs = {option(argv, "--out"): argv for argv in _dry_run(tmp_path) if argv[0] == "train" and "--fraction" in argv}
+    runs = {option(argv, "--out"): argv for argv in calls if argv[0] == "train" and "--fraction" in argv}
     continued = [(argv, runs[option(argv, "--init").removesuffix("/final")]) for argv in runs.values()
                  if option(argv, "--init", "").removesuffix("/final") in runs]
     assert continued  # the 10%-data arm's second part
@@ -140,12 +145,10 @@ def test_a_fraction_run_continued_from_another_keeps_its_draw(tmp_path):
         assert option(second, "--seed", "0") == option(first, "--seed", "0")
 
 
-def test_the_data_efficiency_arm_trains_a_fresh_system1_on_a_tenth_of_the_shipped_models_data(tmp_path):
+def test_the_data_efficiency_arm_trains_a_fresh_system1_on_a_tenth_of_the_shipped_models_data(calls):
     """Step 30: the tables' 10% arm is an export <- follow <- bind (a fresh grounding) <- joint with a fresh
     System 1 on the shipped model's Systems 2 and 3, on 3 + 5 demonstrations per task (a tenth of the 30 + 50
     per task the shipped model's last runs trained on, in the same proportions)."""
-    calls = _dry_run(tmp_path)
-
     tables = next(argv for argv in calls if argv[0] == "tables" and "--data10" in argv
                   and option(argv, "--full") == "models/trivla_cpu")
     export = run_writing(calls, option(tables, "--data10"))

@@ -80,10 +80,11 @@ def _xy(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
-                 tasks: tuple[str, ...] = GRASP_TASKS) -> list[GraspRow]:
+                 tasks: tuple[str, ...] = GRASP_TASKS, max_steps: int | None = None) -> list[GraspRow]:
     """Runs `episodes_per_task` episodes of each of `tasks` (seeds `seed`, `seed` + 1, ...: 1000 on
     are scenes the demonstrations never saw) with `policy` (a harness policy; a TriVLA one with a
-    grounding also gets its sub-goals recorded) and reports where its gripper first closed."""
+    grounding also gets its sub-goals recorded) and reports where its gripper first closed.
+    `max_steps` cuts each episode short (None: the task's own limit)."""
     from trivla_drake.data.subgoals import quaternion_yaw
     from trivla_drake.eval.episode import run_episode, shared_env
     from trivla_drake.tasks.scene import yaw_to_faces_deg
@@ -101,7 +102,7 @@ def grasp_report(policy, episodes_per_task: int = 6, seed: int = 1000,
     for task in tasks:
         for k in range(episodes_per_task):
             episode_seed = seed + k
-            result = run_episode(task, episode_seed, recorder, keep_trajectory=True)
+            result = run_episode(task, episode_seed, recorder, keep_trajectory=True, max_steps=max_steps)
             # The initial blocks: the scene run_episode drew from the same seed (the trajectory keeps no scene).
             spec, instance = sample_task_instance(get_task(task), np.random.default_rng(episode_seed),
                                                   shared_env(224).layout())
