@@ -30,6 +30,28 @@ def test_embodiment_weights_differ_and_only_the_used_slice_learns():
     assert single(torch.randn(2, 7, 3), torch.tensor([0, 1])).shape == (2, 7, 2)
 
 
+def test_embodiment_gradients_are_the_same_on_every_run_with_several_threads():
+    """A seeded training run repeats bit for bit: the weight gradient does not depend on how the CPU
+    threads interleave (advanced indexing's backward added with atomics and differed run to run)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        torch.manual_seed(0)
+        layer = EmbodimentLinear(2, 384, 192)
+        x, upstream = torch.randn(32, 12, 384), torch.randn(32, 12, 192)
+        ids = torch.tensor([0, 0, 1] * 10 + [0, 1])
+
+        def weight_gradient() -> torch.Tensor:
+            layer.zero_grad(set_to_none=True)
+            (layer(x, ids) * upstream).sum().backward()
+            return layer.weight.grad.clone()
+
+        first = weight_gradient()
+        assert all(torch.equal(first, weight_gradient()) for _ in range(8))
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_unknown_embodiment_ids_are_rejected():
     with pytest.raises(ValueError, match="embodiment_id"):
         check_embodiment_ids(torch.tensor([0, 2]), 2)

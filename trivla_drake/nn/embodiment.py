@@ -38,8 +38,11 @@ class EmbodimentLinear(nn.Module):
 
     def forward(self, x: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
         """x: (B, ..., in), embodiment_id: (B,) long -> (B, ..., out)."""
-        w = self.weight[embodiment_id]  # (B, in, out)
-        b = self.bias[embodiment_id]  # (B, out)
+        # index_select, not self.weight[embodiment_id]: the gradient of advanced indexing accumulates
+        # with atomic adds across CPU threads, so two runs from one seed would differ in rounding.
+        ids = embodiment_id.long()
+        w = self.weight.index_select(0, ids)  # (B, in, out)
+        b = self.bias.index_select(0, ids)  # (B, out)
         flat = x.reshape(x.shape[0], -1, x.shape[-1])
         out = torch.bmm(flat, w) + b.unsqueeze(1)
         return out.reshape(*x.shape[:-1], out.shape[-1])
