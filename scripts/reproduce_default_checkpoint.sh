@@ -556,7 +556,8 @@ ablation_arms models/trivla_cpu arm2 results/subcell_follow
 #     model's Systems 2 and 3, trained by step 12's three phases: joint 2000 steps, a fresh grounding bound 1200
 #     steps and checked, then following it 2500 steps with averaged weights (step 29's settings); exported, and
 #     the tables of the shipped model with it, reusing the evaluations in results/evaluations/ (the session
-#     that made it had no ablation arm at hand: with them, step 29's tables call takes --data10 as well); three
+#     that made it had no ablation arm at hand: with them, step 29's tables call takes --data10 as well); its
+#     data-efficiency rows joined into results/report.md (the full model's rows of both reports must agree); three
 #     more seeds of the arm.
 DATA10=${DATA10:-$DATA-10pct}
 mkdir -p results/data_efficiency
@@ -575,6 +576,7 @@ trivla-drake export "$RUNS/data10_follow/final" --out "$RUNS/data10_export" --dr
 trivla-drake tables --full models/trivla_cpu --data10 "$RUNS/data10_export" --episodes 2 --chains 3 --workers 2 \
     --latency-tasks rotate_block_left,turn_off_light,unstack_block --evaluations results/evaluations \
     --out results/data_efficiency
+"${PYTHON:-python}" results/join_data_efficiency.py
 for seed in 1003 1004 1005; do
   trivla-drake evaluate --policy "$RUNS/data10_export" --episodes 2 --seed "$seed" --workers 2 --no-progress \
       --json > "results/data_efficiency/data10_seed$seed.json"

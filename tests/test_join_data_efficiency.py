@@ -1,0 +1,62 @@
+"""results/join_data_efficiency.py: the 10%-data arm's rows joined into the shipped model's tables."""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+RESULTS = Path(__file__).resolve().parents[1] / "results"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("join_data_efficiency", RESULTS / "join_data_efficiency.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _stored(path: str) -> dict:
+    return json.loads((RESULTS / path).read_text())
+
+
+def test_the_stored_report_is_the_join_of_its_two_runs():
+    """results/report.json is what the script makes, and it keeps the ablation and adds the 10% arm."""
+    join = _script().join
+    full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
+    joined = join(full, arm)
+    assert joined == full  # the committed report is already joined: joining again changes nothing
+    assert [row["systems"] for row in joined["ablation"]] == ["1", "1+3", "1+2+3"]
+    assert joined["data10"] == arm["data10"] and set(joined["config"]["checkpoints"]) == {
+        "full", "system1", "system1_3", "data10"}
+    assert joined["data_efficiency"]["10%"] == pytest.approx(arm["data10"]["average_success"])
+
+
+def test_reports_that_disagree_on_the_full_model_are_not_joined():
+    join = _script().join
+    full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
+    changed = copy.deepcopy(arm)
+    changed["main"]["average_success"] += 0.01
+    with pytest.raises(ValueError, match="'main'"):
+        join(full, changed)
+    changed = copy.deepcopy(arm)
+    changed["config"]["seeds"] = [1000]
+    with pytest.raises(ValueError, match="config"):
+        join(full, changed)
+
+
+def test_the_script_writes_markdown_with_the_data_efficiency_rows(tmp_path):
+    (tmp_path / "data_efficiency").mkdir()
+    shutil.copy(RESULTS / "report.json", tmp_path / "report.json")
+    shutil.copy(RESULTS / "data_efficiency" / "report.json", tmp_path / "data_efficiency" / "report.json")
+    module = _script()
+    report = module.join(json.loads((tmp_path / "report.json").read_text()),
+                         json.loads((tmp_path / "data_efficiency" / "report.json").read_text()))
+    module.write_tables(report, tmp_path)
+    markdown = (tmp_path / "report.md").read_text()
+    assert "## Sub-system ablation" in markdown and "## Data efficiency" in markdown
+    assert (tmp_path / "report.md").read_text() == (RESULTS / "report.md").read_text()
