@@ -1,0 +1,97 @@
+"""Where a policy carries the block in `stack_block` episodes: towards the named destination block or
+towards the third block?
+
+For each episode (the `evaluate` episodes of `--seed S --episodes 2`: same scenes, instructions and policy
+seeds), once per chunk: whether the named (top) block is held, and the xy distance from it to the named
+destination (base) and to the other block; and
+whether the instruction grounding's sub-goal for that observation lies nearer the destination or the other
+block (a grounding model only). Usage, from the repository root:
+
+    python results/stack_destinations/stack_destinations.py CHECKPOINT|trivla OUT.json [SEEDS]
+
+SEEDS defaults to 1000,1001,1002,1003,1004,1005; two worker processes, torch at one thread each."""
+
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import numpy as np
+
+TASK = "stack_block"
+IMAGE_SIZE = 224  # as `evaluate` renders for an image policy
+
+
+class _Logged:
+    """The policy, and at each chunk it plans: which blocks are held and where they are."""
+
+    def __init__(self, inner, env):
+        self.inner, self.env, self.log = inner, env, []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def reset(self, *args, **kwargs):
+        self.log = []
+        return self.inner.reset(*args, **kwargs)
+
+    def act(self, obs):
+        scene = self.env.scene()
+        holding = {c: scene.is_held(c) for c in scene.blocks}
+        subgoal = None
+        if any(holding.values()):  # where the grounding puts the next gripper event (a second System 2 pass)
+            subgoal = self.inner.model.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
+                                                       obs["state"])
+        chunk = self.inner.act(obs)
+        self.log.append((holding, {c: scene.block_position(c).copy() for c in scene.blocks}, subgoal))
+        return chunk
+
+
+def episode(job: tuple) -> dict:
+    policy_spec, seed, index = job
+    import torch
+
+    torch.set_num_threads(1)
+    from trivla_drake.eval.episode import derive_seed, run_episode, shared_env
+    from trivla_drake.eval.policies import load_policy
+    from trivla_drake.tasks.suite import get_task, sample_task_instance
+
+    env = shared_env(IMAGE_SIZE)
+    policy = _Logged(load_policy(policy_spec), env)
+    episode_seed = derive_seed(seed, TASK, index)
+    _, instance = sample_task_instance(get_task(TASK), np.random.default_rng(episode_seed), env.layout())
+    result = run_episode(TASK, episode_seed, policy, image_size=IMAGE_SIZE)
+    top, base = instance.params
+    row = {"seed": seed, "index": index, "instruction": instance.instruction, "success": result.success,
+           "held_chunks": 0}
+    held = [(positions, subgoal) for holding, positions, subgoal in policy.log if holding[top]]
+    if held:
+        other = next(c for c in held[0][0] if c not in (top, base))
+        to = {c: [float(np.linalg.norm(p[top][:2] - p[c][:2])) for p, _ in held] for c in (base, other)}
+        # Chunks whose sub-goal lies nearer the destination than the other block.
+        subgoal_nearer = sum(1 for p, g in held
+                             if np.linalg.norm(g[:2] - p[base][:2]) < np.linalg.norm(g[:2] - p[other][:2]))
+        row.update(held_chunks=len(held), min_to_destination=min(to[base]), min_to_other=min(to[other]),
+                   last_to_destination=to[base][-1], last_to_other=to[other][-1],
+                   subgoal_nearer_destination=subgoal_nearer)
+    return row
+
+
+if __name__ == "__main__":
+    if len(sys.argv) not in (3, 4):
+        sys.exit(__doc__)
+    seeds = [int(s) for s in (sys.argv[3] if len(sys.argv) == 4 else "1000,1001,1002,1003,1004,1005").split(",")]
+    jobs = [(sys.argv[1], seed, index) for seed in seeds for index in (0, 1)]
+    with ProcessPoolExecutor(2, mp_context=get_context("spawn")) as pool:
+        rows = list(pool.map(episode, jobs))
+    with open(sys.argv[2], "w") as out:
+        json.dump(rows, out, indent=1)
+    print("| seed | episode | success | chunks holding the block | closest to destination / other [cm] | "
+          "at the last such chunk [cm] | sub-goal nearer the destination (chunks) | instruction |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        near = (f"{100 * r['min_to_destination']:.1f} / {100 * r['min_to_other']:.1f} | "
+                f"{100 * r['last_to_destination']:.1f} / {100 * r['last_to_other']:.1f} | "
+                f"{r['subgoal_nearer_destination']}") if r["held_chunks"] else "- | - | -"
+        print(f"| {r['seed']} | {r['index']} | {'yes' if r['success'] else 'no'} | {r['held_chunks']} | {near} | "
+              f"{r['instruction']} |")
