@@ -587,15 +587,18 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/data10_follow
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 2 --subgoal-offset --ema-decay 0.999
 trivla-drake export "$RUNS/data10_follow2/final" --out "$RUNS/data10_follow2_export" --drop-unused-llm-layers
 six_seeds "$RUNS/data10_follow2_export" results/data_efficiency/data10_longer
-# 31. Diagnostics of the shipped model (nothing is trained): inference settings on six seeds
-#     (results/inference_settings/); each chain's first task alone, on the 40 extra chains' seeds and three new
-#     ones (results/chain_first_tasks/); where the stack episodes carry the block (results/stack_destinations/).
-six_seeds models/trivla_cpu results/inference_settings/noise05 --noise-scale 0.5
-six_seeds models/trivla_cpu results/inference_settings/exec5 --execute-steps 5
-six_seeds models/trivla_cpu results/inference_settings/noise0 --noise-scale 0
-"${PYTHON:-python}" results/chain_first_tasks/chain_first_tasks.py 1003,1004 20 \
-    results/chain_first_tasks/first_tasks_seeds1003-1004.json
-"${PYTHON:-python}" results/chain_first_tasks/chain_first_tasks.py 1006,1007,1008 20 \
-    results/chain_first_tasks/first_tasks_seeds1006-1008.json
-"${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
-    > results/stack_destinations/shipped.md
+# 31. Optional (DIAGNOSE=1): diagnostics of the shipped model, nothing trained (about 55 min): inference settings
+#     on six seeds (results/inference_settings/); each chain's first task alone, on the 40 extra chains' seeds and
+#     three new ones (results/chain_first_tasks/); where the stack episodes carry the block (results/stack_destinations/).
+if [[ "${DIAGNOSE:-0}" == 1 ]]; then
+  mkdir -p results/inference_settings results/chain_first_tasks results/stack_destinations
+  six_seeds models/trivla_cpu results/inference_settings/noise05 --noise-scale 0.5
+  six_seeds models/trivla_cpu results/inference_settings/exec5 --execute-steps 5
+  six_seeds models/trivla_cpu results/inference_settings/noise0 --noise-scale 0
+  "${PYTHON:-python}" results/chain_first_tasks/chain_first_tasks.py 1003,1004 20 \
+      results/chain_first_tasks/first_tasks_seeds1003-1004.json
+  "${PYTHON:-python}" results/chain_first_tasks/chain_first_tasks.py 1006,1007,1008 20 \
+      results/chain_first_tasks/first_tasks_seeds1006-1008.json
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
+      > results/stack_destinations/shipped.md
+fi

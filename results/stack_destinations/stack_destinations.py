@@ -27,6 +27,8 @@ class _Logged:
 
     def __init__(self, inner, env):
         self.inner, self.env, self.log = inner, env, []
+        model = getattr(inner, "model", None)  # the oracle and models without a grounding: no sub-goal to ask
+        self.grounded = model is not None and getattr(model.policy, "grounding", None) is not None
 
     def __getattr__(self, name):
         return getattr(self.inner, name)
@@ -39,7 +41,7 @@ class _Logged:
         scene = self.env.scene()
         holding = {c: scene.is_held(c) for c in scene.blocks}
         subgoal = None
-        if any(holding.values()):  # where the grounding puts the next gripper event (a second System 2 pass)
+        if self.grounded and any(holding.values()):  # where the grounding puts the next gripper event (a second System 2 pass)
             subgoal = self.inner.model.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
                                                        obs["state"])
         chunk = self.inner.act(obs)
@@ -68,9 +70,9 @@ def episode(job: tuple) -> dict:
     if held:
         other = next(c for c in held[0][0] if c not in (top, base))
         to = {c: [float(np.linalg.norm(p[top][:2] - p[c][:2])) for p, _ in held] for c in (base, other)}
-        # Chunks whose sub-goal lies nearer the destination than the other block.
-        subgoal_nearer = sum(1 for p, g in held
-                             if np.linalg.norm(g[:2] - p[base][:2]) < np.linalg.norm(g[:2] - p[other][:2]))
+        # Chunks whose sub-goal lies nearer the destination than the other block (None without a grounding).
+        subgoal_nearer = sum(1 for p, g in held if np.linalg.norm(g[:2] - p[base][:2])
+                             < np.linalg.norm(g[:2] - p[other][:2])) if policy.grounded else None
         row.update(held_chunks=len(held), min_to_destination=min(to[base]), min_to_other=min(to[other]),
                    last_to_destination=to[base][-1], last_to_other=to[other][-1],
                    subgoal_nearer_destination=subgoal_nearer)
@@ -92,6 +94,7 @@ if __name__ == "__main__":
     for r in rows:
         near = (f"{100 * r['min_to_destination']:.1f} / {100 * r['min_to_other']:.1f} | "
                 f"{100 * r['last_to_destination']:.1f} / {100 * r['last_to_other']:.1f} | "
-                f"{r['subgoal_nearer_destination']}") if r["held_chunks"] else "- | - | -"
+                f"{'-' if r['subgoal_nearer_destination'] is None else r['subgoal_nearer_destination']}"
+                ) if r["held_chunks"] else "- | - | -"
         print(f"| {r['seed']} | {r['index']} | {'yes' if r['success'] else 'no'} | {r['held_chunks']} | {near} | "
               f"{r['instruction']} |")
