@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from trivla_drake.data.samples import TrainingSamples
-from trivla_drake.data.subgoals import approach_frames, next_gripper_event_positions
+from trivla_drake.data.subgoals import approach_frames, carry_frames, next_gripper_event_positions
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding, grounding_loss
@@ -34,6 +34,45 @@ def test_approach_frames_are_those_before_the_first_gripper_change():
     assert approach_frames(np.ones(3)).all()  # a push: no change, every frame approaches
     with pytest.raises(ValueError, match="gripper must be"):
         approach_frames(np.ones((2, 2)))
+
+
+def test_carry_frames_run_from_the_last_grasp_to_the_release():
+    # open, a missed grasp (closed, opened again), the grasp, the carry, the release
+    gripper = np.array([1, 1, -1, -1, 1, 1, -1, -1, -1, 1, 1.0])
+    np.testing.assert_array_equal(np.flatnonzero(carry_frames(gripper)), [6, 7, 8])
+    # their sub-goal is where the hand opens (frame 9)
+    tcp = np.arange(11 * 3, dtype=np.float64).reshape(11, 3)
+    np.testing.assert_allclose(next_gripper_event_positions(gripper, tcp)[6:9], np.repeat(tcp[9:10], 3, axis=0))
+    assert not carry_frames(np.array([1, 1, -1, -1.0])).any()  # a lift: never released
+    assert not carry_frames(np.ones(4)).any()  # a push: never closed
+    with pytest.raises(ValueError, match=r"\(T,\)"):
+        carry_frames(np.ones((2, 2)))
+
+
+def test_training_samples_add_the_carry_frames_of_the_tasks_asked(tmp_path):
+    from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotWriter
+    from trivla_drake.train.synthetic import CAMERAS, synthetic_features
+
+    n = 12
+    gripper = np.where((np.arange(n) >= 4) & (np.arange(n) < 9), -1.0, 1.0)  # grasp at 4, release at 9
+    writer = LeRobotWriter(tmp_path / "d", fps=36.0, features=synthetic_features(16, 36.0, tcp_pose=True))
+    for task in ("stack_block", "lift_block"):
+        action = np.zeros((n, 7), dtype=np.float32)
+        action[:, 6] = gripper
+        pose = np.zeros((n, 7), dtype=np.float32)
+        pose[:, 0], pose[:, 3] = np.arange(n) / n, 1.0
+        writer.add_episode({"observation.state": np.zeros((n, 18), dtype=np.float32), "action": action,
+                            "observation.tcp_pose": pose}, f"a {task} instruction",
+                           videos={key: np.zeros((n, 16, 16, 3), dtype=np.uint8) for key in CAMERAS},
+                           extra={EPISODE_TASK_KEY: task})
+    plain = TrainingSamples(tmp_path / "d", history=1, future_frames=0, cameras=[])
+    carry = TrainingSamples(tmp_path / "d", history=1, future_frames=0, cameras=[],
+                            grounding_carry_tasks=("stack_block",))
+    np.testing.assert_array_equal(np.flatnonzero(plain.approach_frames(0)), [0, 1, 2, 3])
+    np.testing.assert_array_equal(np.flatnonzero(carry.approach_frames(0)), [0, 1, 2, 3, 4, 5, 6, 7, 8])
+    np.testing.assert_array_equal(carry.approach_frames(1), plain.approach_frames(1))  # lift is not asked
+    assert carry[6]["subgoal_is_approach"] and not plain[6]["subgoal_is_approach"]
+    np.testing.assert_allclose(carry[6]["subgoal_position"], [9 / n, 0, 0])  # the release
 
 
 def test_grounding_loss_counts_only_the_rows_asked():

@@ -145,3 +145,14 @@ def test_every_train_config_field_names_the_flag_that_sets_it():
     saved = TrainConfig(stage="policy", data="d", out="o")
     with pytest.raises(ValueError, match=r"gripper_event_window_s \(--gripper-event-window\) was 1.0"):
         check_resume_compatible(saved, dataclasses.replace(saved, gripper_event_window_s=0.5))
+
+
+@pytest.mark.parametrize("extra, message", [
+    (("--grounding-carry", "stack_blok", "--grounding-weight", "1"), r"--grounding-carry\) names unknown tasks \['stack_blok'\]"),
+    (("--grounding-carry", "stack_block"), r"--grounding-carry\) adds frames to the grounding's loss: it needs"),
+])
+def test_grounding_carry_names_a_bad_task_or_a_missing_grounding(setup, capsys, tmp_path, extra, message):
+    import re
+
+    err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", setup["good"], *extra)
+    assert re.search(message, err), err

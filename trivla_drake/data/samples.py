@@ -31,8 +31,13 @@ from collections import OrderedDict
 
 import numpy as np
 
-from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader
-from trivla_drake.data.subgoals import approach_frames, next_gripper_event_positions, next_gripper_event_yaws
+from trivla_drake.data.lerobot import EPISODE_TASK_KEY, PERTURBED_FRAMES_KEY, LeRobotReader
+from trivla_drake.data.subgoals import (
+    approach_frames,
+    carry_frames,
+    next_gripper_event_positions,
+    next_gripper_event_yaws,
+)
 
 GRIPPER_INDEX = 6
 TCP_POSE_KEY = "observation.tcp_pose"  # (7,): x, y, z [m] in the world, then a quaternion
@@ -53,6 +58,7 @@ class TrainingSamples:
         state_key: str = "observation.state",
         action_key: str = "action",
         cache_episodes: int = 4,
+        grounding_carry_tasks: tuple[str, ...] = (),
     ):
         self.reader = reader if isinstance(reader, LeRobotReader) else LeRobotReader(reader)
         for name, value in (("history", history), ("chunk_size", chunk_size), ("future_stride", future_stride)):
@@ -74,6 +80,9 @@ class TrainingSamples:
         self._starts = np.concatenate([[0], np.cumsum(lengths)])
         self._cache: OrderedDict[int, dict] = OrderedDict()
         self._cache_size = max(1, cache_episodes)
+        # Episodes of these tasks (their recorded `trivla/task`) also train the grounding on their carrying
+        # frames (data/subgoals.py, `carry_frames`).
+        self.grounding_carry_tasks = frozenset(grounding_carry_tasks)
 
     def __len__(self) -> int:
         return int(self._starts[-1])
@@ -86,8 +95,9 @@ class TrainingSamples:
         return episode, int(index - self._starts[episode])
 
     def approach_frames(self, episode: int) -> np.ndarray:
-        """bool (T,) of one episode: the frames before its first gripper change (data/subgoals.py),
-        those that train the instruction grounding. Needs the dataset's observation.tcp_pose."""
+        """bool (T,) of one episode: the frames that train the instruction grounding: those before its first
+        gripper change (data/subgoals.py), and for a task in `grounding_carry_tasks` its carrying frames.
+        Needs the dataset's observation.tcp_pose."""
         data = self._episode(episode)
         if "subgoal_is_approach" not in data:
             raise ValueError(f"the dataset at {self.reader.root} has no {TCP_POSE_KEY!r}: it has no sub-goal labels")
@@ -112,6 +122,8 @@ class TrainingSamples:
             data["subgoal_position"] = next_gripper_event_positions(gripper, tcp_pose[:, :3])
             data["subgoal_yaw"] = next_gripper_event_yaws(gripper, tcp_pose[:, 3:7])
             data["subgoal_is_approach"] = approach_frames(gripper)
+            if self.reader.episodes[episode].get(EPISODE_TASK_KEY) in self.grounding_carry_tasks:
+                data["subgoal_is_approach"] |= carry_frames(gripper)
         self._cache[episode] = data
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)

@@ -8,7 +8,9 @@ instruction and the images, a dense training signal for *which* object the words
 nothing here is an input at inference.
 
 Only the *approach* frames, those before the first gripper change, train the grounding: there the
-named object is the only cue to the sub-goal. Once a block is held, the wrist view shows the
+named object is the only cue to the sub-goal. Optionally (`--grounding-carry TASKS`) so do the frames
+that carry a held block to a destination the instruction names (stack's second colour; `carry_frames`),
+where the wrist view does not show the answer. Once a block is held, the wrist view shows the
 answer, and with those frames in the loss the grounding never learnt to read the colour word (10 of
 30 queries nearest the named block, chance; 28 of 30 on the approach frames alone,
 results/instruction_grounding).
@@ -32,6 +34,26 @@ def approach_frames(gripper: np.ndarray) -> np.ndarray:
     changes = gripper_changes(gripper)
     first = int(changes[0]) if changes.size else len(gripper)
     return np.arange(len(gripper)) < first
+
+
+def carry_frames(gripper: np.ndarray) -> np.ndarray:
+    """bool (T,): True for the frames that carry a held object to its release: from the last close before
+    the episode's last opening up to (not including) that opening. Their sub-goal label is the release
+    position (`next_gripper_event_positions`). A grasp that missed and was opened again, before the final
+    grasp, is not a carry. All False when the hand never opens after closing (a lift, a push)."""
+    gripper = np.asarray(gripper, dtype=np.float64)
+    if gripper.ndim != 1:
+        raise ValueError(f"gripper must be (T,); got {gripper.shape}")
+    carry = np.zeros(len(gripper), dtype=bool)
+    changes = gripper_changes(gripper)
+    openings = [int(k) for k in changes if gripper[k] > 0]
+    closes = [int(k) for k in changes if gripper[k] <= 0]
+    if openings:
+        release = openings[-1]
+        before = [k for k in closes if k < release]
+        if before:
+            carry[before[-1] : release] = True
+    return carry
 
 
 def before_gripper_event_frames(gripper: np.ndarray, window: int) -> np.ndarray:

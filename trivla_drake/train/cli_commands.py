@@ -73,6 +73,7 @@ def config_from_args(args: argparse.Namespace):
         subgoal_offset=args.subgoal_offset,
         subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
+        grounding_carry_tasks=tuple(t for t in (args.grounding_carry_tasks or "").split(",") if t),
         system2_from=args.system2_from,
         fresh_system1=args.fresh_system1,
         grounding_reads_tcp=args.grounding_reads_tcp,
@@ -196,6 +197,11 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "together; bind trains only the grounding and the Q_vl projection, on the sub-goal "
                              "loss over the approach frames; follow keeps those as --init has them and trains the "
                              "rest of System 1. The two-step recipe is bind, then follow from its checkpoint")
+    parser.add_argument("--grounding-carry", dest="grounding_carry_tasks", default=None, metavar="TASKS",
+                        help="policy, with --grounding-weight: these tasks' episodes (comma-separated, e.g. "
+                             "stack_block) also train the grounding on the frames that carry the held block to its "
+                             "release, labelled with the release position: the frames that ask for the "
+                             "destination's colour (default: the approach frames alone)")
     parser.add_argument("--keep-grounding", action="store_true",
                         help="policy, --grounding-phase bind with --init: go on binding the --init checkpoint's "
                              "grounding instead of a fresh one (bind on few scenes first, then on more)")

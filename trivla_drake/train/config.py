@@ -44,6 +44,7 @@ FLAGS_NAMED_OTHERWISE = {
     "tcp_features": "--no-tcp-features",
     "vlm_loss_weighting": "--vlm-loss",
     "progress": "--no-progress",
+    "grounding_carry_tasks": "--grounding-carry",
 }
 # Fields that no `train` flag sets (their defaults, or a preset's).
 FIELDS_WITHOUT_FLAG = frozenset(
@@ -183,6 +184,11 @@ class TrainConfig:
     # policy stage, grounding_phase "bind" with --init: continue the --init checkpoint's grounding instead
     # of binding a fresh one, a curriculum (bind on few scenes, where the binding forms, then on more).
     keep_grounding: bool = False
+    # policy stage, with a grounding: episodes of these tasks (e.g. ("stack_block",)) also train the grounding
+    # on the frames that carry the held block to its release, labelled with the release position
+    # (data/subgoals.py, `carry_frames`): the only frames that ask for a destination's colour
+    # (results/stack_destinations). Empty: the approach frames alone.
+    grounding_carry_tasks: tuple[str, ...] = ()
     # policy stage, with --init: replace the --init model's System 2 by this checkpoint's (a System 2
     # retrained by the vlm stage), keeping System 1 and System 3; the feature statistics are fitted
     # again, so not in a follow run, which keeps its bind run's (results/subcell_dense).
@@ -295,6 +301,16 @@ class TrainConfig:
         if self.grounding_phase != "joint" and not self.grounding_weight > 0:
             raise ValueError(f"grounding_phase (--grounding-phase) {self.grounding_phase} trains with System 1's "
                              "instruction grounding: it needs grounding_weight (--grounding-weight) > 0")
+        if self.grounding_carry_tasks:
+            from trivla_drake.tasks.suite import TASK_NAMES
+
+            unknown = [name for name in self.grounding_carry_tasks if name not in TASK_NAMES]
+            if unknown:
+                raise ValueError(f"grounding_carry_tasks (--grounding-carry) names unknown tasks {unknown}; the suite "
+                                 f"has {', '.join(TASK_NAMES)}")
+            if not self.grounding_weight > 0:
+                raise ValueError("grounding_carry_tasks (--grounding-carry) adds frames to the grounding's loss: it "
+                                 "needs grounding_weight (--grounding-weight) > 0")
         if self.keep_grounding and not (self.grounding_phase == "bind" and self.init):
             raise ValueError("keep_grounding (--keep-grounding) continues the grounding of a --init checkpoint in a "
                              "bind run: it needs --grounding-phase bind and --init")
@@ -346,6 +362,10 @@ class TrainConfig:
             raise ValueError("the video stage trains System 3: it cannot run with --no-system3")
         if self.stage == "vlm" and not self.use_system2:
             raise ValueError("the vlm stage trains System 2: it cannot run with --no-system2")
+
+    def __post_init__(self) -> None:
+        # A saved config (JSON) gives a list: as a tuple it compares equal to the flag's on --resume.
+        self.grounding_carry_tasks = tuple(self.grounding_carry_tasks)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""

@@ -280,10 +280,11 @@ class PolicyFeatureDataset:
         use_system2: bool,
         use_system3: bool,
         approach_only: bool = False,
+        grounding_carry_tasks: tuple[str, ...] = (),
     ) -> None:
         self.samples = TrainingSamples(
             reader, history=1, future_frames=0, chunk_size=action_horizon, cameras=[],
-            cache_episodes=max(1, len(episodes)),
+            cache_episodes=max(1, len(episodes)), grounding_carry_tasks=grounding_carry_tasks,
         )
         self.shards, self.use_system2, self.use_system3 = shards, use_system2, use_system3
         lengths = [int(e["length"]) for e in reader.episodes]
