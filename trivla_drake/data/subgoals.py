@@ -8,12 +8,12 @@ instruction and the images, a dense training signal for *which* object the words
 nothing here is an input at inference.
 
 Only the *approach* frames, those before the first gripper change, train the grounding: there the
-named object is the only cue to the sub-goal. Optionally (`--grounding-carry TASKS`) so do the frames
-that carry a held block to a destination the instruction names (stack's second colour; `carry_frames`),
-where the wrist view does not show the answer. Once a block is held, the wrist view shows the
+named object is the only cue to the sub-goal. Once a block is held, the wrist view shows the
 answer, and with those frames in the loss the grounding never learnt to read the colour word (10 of
 30 queries nearest the named block, chance; 28 of 30 on the approach frames alone,
-results/instruction_grounding).
+results/instruction_grounding). Optionally (`--grounding-carry TASKS`) the frames that carry a held
+block to a destination the instruction names train it too (`carry_frames`): the wrist view shows the
+block held, not where it goes, and nothing else asks for stack's second colour (results/stack_destinations).
 """
 
 from __future__ import annotations
