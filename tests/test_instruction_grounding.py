@@ -68,10 +68,10 @@ def test_training_samples_add_the_carry_frames_of_the_tasks_asked(tmp_path):
     plain = TrainingSamples(tmp_path / "d", history=1, future_frames=0, cameras=[])
     carry = TrainingSamples(tmp_path / "d", history=1, future_frames=0, cameras=[],
                             grounding_carry_tasks=("stack_block",))
-    np.testing.assert_array_equal(np.flatnonzero(plain.approach_frames(0)), [0, 1, 2, 3])
-    np.testing.assert_array_equal(np.flatnonzero(carry.approach_frames(0)), [0, 1, 2, 3, 4, 5, 6, 7, 8])
-    np.testing.assert_array_equal(carry.approach_frames(1), plain.approach_frames(1))  # lift is not asked
-    assert carry[6]["subgoal_is_approach"] and not plain[6]["subgoal_is_approach"]
+    np.testing.assert_array_equal(np.flatnonzero(plain.grounding_frames(0)), [0, 1, 2, 3])
+    np.testing.assert_array_equal(np.flatnonzero(carry.grounding_frames(0)), [0, 1, 2, 3, 4, 5, 6, 7, 8])
+    np.testing.assert_array_equal(carry.grounding_frames(1), plain.grounding_frames(1))  # lift is not asked
+    assert carry[6]["subgoal_in_loss"] and not plain[6]["subgoal_in_loss"]
     np.testing.assert_allclose(carry[6]["subgoal_position"], [9 / n, 0, 0])  # the release
 
 
@@ -105,7 +105,7 @@ def test_training_samples_carry_subgoals_when_the_dataset_has_tcp_poses(tmp_path
     frames = [with_pose.reader.episode_frames(0)["observation.tcp_pose"][k, :3] for k in (5, 9)]
     np.testing.assert_allclose(with_pose[2]["subgoal_position"], frames[0])
     np.testing.assert_allclose(with_pose[7]["subgoal_position"], frames[1])
-    assert with_pose[4]["subgoal_is_approach"] and not with_pose[5]["subgoal_is_approach"]
+    assert with_pose[4]["subgoal_in_loss"] and not with_pose[5]["subgoal_in_loss"]
     without = TrainingSamples(write_synthetic_dataset(tmp_path / "b", episodes=1, length=10),
                               history=1, future_frames=0, cameras=[])
     assert "subgoal_position" not in without[2]
@@ -221,7 +221,7 @@ def test_compute_loss_adds_the_weighted_grounding_loss_and_trains_the_grounding(
         (lambda b: b.pop("subgoal_position"), "subgoal_position"),
         (lambda b: b.update(subgoal_position=torch.zeros(2, 2)), r"subgoal_position'\] must be finite \(2, 3\)"),
         (lambda b: b.update(subgoal_position=torch.full((2, 3), float("nan"))), "subgoal_position"),
-        (lambda b: b.update(subgoal_is_approach=torch.ones(3, dtype=torch.bool)), r"subgoal_is_approach'\] must be \(2,\)"),
+        (lambda b: b.update(subgoal_in_loss=torch.ones(3, dtype=torch.bool)), r"subgoal_in_loss'\] must be \(2,\)"),
     ],
 )
 @pytest.mark.parametrize("alone", [False, True])

@@ -6,6 +6,8 @@ import copy
 import importlib.util
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -49,14 +51,14 @@ def test_reports_that_disagree_on_the_full_model_are_not_joined():
         join(full, changed)
 
 
-def test_the_script_writes_markdown_with_the_data_efficiency_rows(tmp_path):
+def test_the_script_rewrites_the_markdown_and_plots_from_the_two_reports(tmp_path):
+    """The command reproduce step 30 runs, on copies: it writes the committed report.md again."""
     (tmp_path / "data_efficiency").mkdir()
     shutil.copy(RESULTS / "report.json", tmp_path / "report.json")
     shutil.copy(RESULTS / "data_efficiency" / "report.json", tmp_path / "data_efficiency" / "report.json")
-    module = _script()
-    report = module.join(json.loads((tmp_path / "report.json").read_text()),
-                         json.loads((tmp_path / "data_efficiency" / "report.json").read_text()))
-    module.write_tables(report, tmp_path)
+    subprocess.run([sys.executable, str(RESULTS / "join_data_efficiency.py"), str(tmp_path)], check=True,
+                   capture_output=True)
     markdown = (tmp_path / "report.md").read_text()
     assert "## Sub-system ablation" in markdown and "## Data efficiency" in markdown
-    assert (tmp_path / "report.md").read_text() == (RESULTS / "report.md").read_text()
+    assert markdown == (RESULTS / "report.md").read_text()
+    assert (tmp_path / "per_task_success.png").is_file() and (tmp_path / "ablation.png").is_file()

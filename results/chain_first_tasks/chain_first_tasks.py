@@ -3,33 +3,46 @@ task, instruction and policy seed as that chain's first task), with the shipped 
 
     python results/chain_first_tasks/chain_first_tasks.py SEEDS N OUT.json
 
-SEEDS: comma-separated evaluate seeds; N: chains per seed. Prints successes per task.
-"""
-import sys, json
+SEEDS: comma-separated evaluate seeds; N: chains per seed. Prints successes per task."""
+
+import collections
+import json
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 
-def work(args):
-    seed, indices = args
-    import torch; torch.set_num_threads(1)
-    from trivla_drake.eval.episode import run_chain, derive_seed
+
+def first_tasks(job: tuple[int, list[int]]) -> list[dict]:
+    """The first task of chains `indices` of evaluate seed `seed`."""
+    seed, indices = job
+    import torch
+
+    torch.set_num_threads(1)  # as evaluate's workers
+    from trivla_drake.eval.episode import derive_seed, run_chain
     from trivla_drake.eval.policies import load_policy
-    p = load_policy("trivla", None)
-    out = []
-    for j in indices:
-        r = run_chain(derive_seed(seed, "chain", j), p, length=1).to_dict()
-        s = r["subtasks"][0] if r["subtasks"] else {}
-        out.append({"seed": seed, "index": j, "task": s.get("task"), "instruction": s.get("instruction"),
-                    "success": bool(s.get("success")), "steps": s.get("steps")})
-    return out
+
+    policy = load_policy("trivla")
+    rows = []
+    for index in indices:
+        chain = run_chain(derive_seed(seed, "chain", index), policy, length=1).to_dict()
+        task = chain["subtasks"][0] if chain["subtasks"] else {}
+        rows.append({"seed": seed, "index": index, "task": task.get("task"), "instruction": task.get("instruction"),
+                     "success": bool(task.get("success")), "steps": task.get("steps")})
+    return rows
+
 
 if __name__ == "__main__":
-    seeds = [int(s) for s in sys.argv[1].split(",")]; n = int(sys.argv[2])
-    jobs = [(s, list(range(k, n, 2))) for s in seeds for k in (0, 1)]
+    if len(sys.argv) != 4:
+        sys.exit(__doc__)
+    seeds, chains = [int(s) for s in sys.argv[1].split(",")], int(sys.argv[2])
+    jobs = [(seed, list(range(start, chains, 2))) for seed in seeds for start in (0, 1)]
     with ProcessPoolExecutor(2, mp_context=get_context("spawn")) as pool:
-        res = [r for part in pool.map(work, jobs) for r in part]
-    json.dump(res, open(sys.argv[3], "w"), indent=1)
-    import collections
-    c = collections.defaultdict(lambda: [0, 0])
-    for r in res: c[r["task"]][0] += r["success"]; c[r["task"]][1] += 1
-    print(sum(r["success"] for r in res), "/", len(res), {t: f"{a}/{b}" for t, (a, b) in sorted(c.items())})
+        rows = [row for part in pool.map(first_tasks, jobs) for row in part]
+    with open(sys.argv[3], "w") as out:
+        json.dump(rows, out, indent=1)
+    per_task = collections.defaultdict(lambda: [0, 0])
+    for row in rows:
+        per_task[row["task"]][0] += row["success"]
+        per_task[row["task"]][1] += 1
+    print(sum(row["success"] for row in rows), "/", len(rows),
+          {task: f"{done}/{count}" for task, (done, count) in sorted(per_task.items())})

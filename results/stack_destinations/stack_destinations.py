@@ -41,7 +41,7 @@ class _Logged:
         scene = self.env.scene()
         holding = {c: scene.is_held(c) for c in scene.blocks}
         subgoal = None
-        if self.grounded and any(holding.values()):  # where the grounding puts the next gripper event (a second System 2 pass)
+        if self.grounded and any(holding.values()):  # where the grounding puts the next event: a 2nd System 2 pass
             subgoal = self.inner.model.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
                                                        obs["state"])
         chunk = self.inner.act(obs)
@@ -56,15 +56,12 @@ def episode(job: tuple) -> dict:
     torch.set_num_threads(1)
     from trivla_drake.eval.episode import derive_seed, run_episode, shared_env
     from trivla_drake.eval.policies import load_policy
-    from trivla_drake.tasks.suite import get_task, sample_task_instance
 
     env = shared_env(IMAGE_SIZE)
     policy = _Logged(load_policy(policy_spec), env)
-    episode_seed = derive_seed(seed, TASK, index)
-    _, instance = sample_task_instance(get_task(TASK), np.random.default_rng(episode_seed), env.layout())
-    result = run_episode(TASK, episode_seed, policy, image_size=IMAGE_SIZE)
-    top, base = instance.params
-    row = {"seed": seed, "index": index, "instruction": instance.instruction, "success": result.success,
+    result = run_episode(TASK, derive_seed(seed, TASK, index), policy, image_size=IMAGE_SIZE)
+    top, base = result.params
+    row = {"seed": seed, "index": index, "instruction": result.instruction, "success": result.success,
            "held_chunks": 0}
     held = [(positions, subgoal) for holding, positions, subgoal in policy.log if holding[top]]
     if held:

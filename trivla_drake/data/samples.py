@@ -19,7 +19,8 @@ Sample for frame t of an episode with T frames (keys; shapes with the defaults):
                             changes (data/subgoals.py); only when the dataset has observation.tcp_pose
     subgoal_yaw             (2,) float32, (cos 4 psi, sin 4 psi) of the tcp's yaw psi at that gripper change
                             (data/subgoals.py: the yaw modulo a quarter turn); with subgoal_position
-    subgoal_is_approach     bool, frame t lies before the episode's first gripper change (with it)
+    subgoal_in_loss         bool, frame t trains the instruction grounding: it lies before the episode's
+                            first gripper change, or carries the block of a `grounding_carry_tasks` task
     episode_index, frame_index
 
 Decoded videos of the most recently used episodes are cached (`cache_episodes`).
@@ -94,14 +95,14 @@ class TrainingSamples:
         episode = int(np.searchsorted(self._starts, index, side="right") - 1)
         return episode, int(index - self._starts[episode])
 
-    def approach_frames(self, episode: int) -> np.ndarray:
+    def grounding_frames(self, episode: int) -> np.ndarray:
         """bool (T,) of one episode: the frames that train the instruction grounding: those before its first
         gripper change (data/subgoals.py), and for a task in `grounding_carry_tasks` its carrying frames.
         Needs the dataset's observation.tcp_pose."""
         data = self._episode(episode)
-        if "subgoal_is_approach" not in data:
+        if "subgoal_in_loss" not in data:
             raise ValueError(f"the dataset at {self.reader.root} has no {TCP_POSE_KEY!r}: it has no sub-goal labels")
-        return np.asarray(data["subgoal_is_approach"], dtype=bool)
+        return np.asarray(data["subgoal_in_loss"], dtype=bool)
 
     def gripper_commands(self, episode: int) -> np.ndarray:
         """float (T,): one episode's recorded gripper commands (+1 open, -1 closed)."""
@@ -121,9 +122,9 @@ class TrainingSamples:
             tcp_pose = np.asarray(data[TCP_POSE_KEY])
             data["subgoal_position"] = next_gripper_event_positions(gripper, tcp_pose[:, :3])
             data["subgoal_yaw"] = next_gripper_event_yaws(gripper, tcp_pose[:, 3:7])
-            data["subgoal_is_approach"] = approach_frames(gripper)
+            data["subgoal_in_loss"] = approach_frames(gripper)
             if self.reader.episodes[episode].get(EPISODE_TASK_KEY) in self.grounding_carry_tasks:
-                data["subgoal_is_approach"] |= carry_frames(gripper)
+                data["subgoal_in_loss"] |= carry_frames(gripper)
         self._cache[episode] = data
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -159,7 +160,7 @@ class TrainingSamples:
         if "subgoal_position" in data:
             sample["subgoal_position"] = data["subgoal_position"][t]
             sample["subgoal_yaw"] = data["subgoal_yaw"][t]
-            sample["subgoal_is_approach"] = bool(data["subgoal_is_approach"][t])
+            sample["subgoal_in_loss"] = bool(data["subgoal_in_loss"][t])
         for key in self.cameras:
             frames = data["videos"][key]
             n = len(frames)

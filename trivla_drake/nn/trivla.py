@@ -512,7 +512,7 @@ class TriVLA(nn.Module):
         precomputed "q_vl" (B, S, D_llm) + optional "q_vl_mask" (B, S) and "dynamics_static"/
         "dynamics_wrist" (B, T+1, C, H_p, W_p). Systems 2 and 3 run without gradient unless train_systems_2_3.
         With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py)
-        and optionally "subgoal_is_approach" bool (B,) (only those rows count): the loss adds
+        and optionally "subgoal_in_loss" bool (B,) (only those rows count): the loss adds
         `grounding_weight` x the grounding's sub-goal loss.
         Returns (loss, info)."""
         pol = self.config.policy
@@ -572,7 +572,7 @@ class TriVLA(nn.Module):
 
     def compute_grounding_loss(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         """The instruction grounding's sub-goal loss alone (no flow matching): "subgoal_position" float
-        (B, 3) [m], optional "subgoal_is_approach" bool (B,) (only those rows count), and precomputed
+        (B, 3) [m], optional "subgoal_in_loss" bool (B,) (only those rows count), and precomputed
         "q_vl" (B, S, D_llm) with optional "q_vl_mask" (B, S), or raw "static_rgb"/"wrist_rgb" +
         "instruction" (System 2 then runs without gradient). Returns (loss, info)."""
         if self.policy.grounding is None:
@@ -606,11 +606,11 @@ class TriVLA(nn.Module):
         target = self._batch_tensor(batch, "subgoal_position")
         if tuple(target.shape) != (b, 3) or not torch.isfinite(target).all():
             raise ValueError(f"batch['subgoal_position'] must be finite ({b}, 3); got {tuple(target.shape)}")
-        counts = batch.get("subgoal_is_approach")
+        counts = batch.get("subgoal_in_loss")
         if counts is not None:
             counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
             if tuple(counts.shape) != (b,):
-                raise ValueError(f"batch['subgoal_is_approach'] must be ({b},); got {tuple(counts.shape)}")
+                raise ValueError(f"batch['subgoal_in_loss'] must be ({b},); got {tuple(counts.shape)}")
         yaw = None
         if subgoal.shape[-1] == 5:
             if "subgoal_yaw" not in batch:

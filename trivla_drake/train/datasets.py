@@ -265,9 +265,10 @@ class PolicyFeatureDataset:
     """One sample per cached frame (every `feature_stride`-th frame of each episode): the current
     state, the action chunk from that frame (padded past the end with holds, `action_is_pad`; entries
     after a disturbed step of a DART demonstration, `action_is_stale`; neither counts), and
-    the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on. With `approach_only`,
-    only the frames before each episode's first gripper change (the instruction grounding's bind
-    phase; the dataset needs observation.tcp_pose)."""
+    the frame's cached Q_vl and F_p (static, wrist) when Systems 2 / 3 are on. With `grounding_frames_only`,
+    only the frames that train the instruction grounding (`TrainingSamples.grounding_frames`: before each
+    episode's first gripper change, and the carrying frames of `grounding_carry_tasks`; the bind phase; the
+    dataset needs observation.tcp_pose)."""
 
     def __init__(
         self,
@@ -279,7 +280,7 @@ class PolicyFeatureDataset:
         action_horizon: int,
         use_system2: bool,
         use_system3: bool,
-        approach_only: bool = False,
+        grounding_frames_only: bool = False,
         grounding_carry_tasks: tuple[str, ...] = (),
     ) -> None:
         self.samples = TrainingSamples(
@@ -292,12 +293,13 @@ class PolicyFeatureDataset:
         rows = []
         for episode in episodes:
             length = int(reader.episodes[episode]["length"])
-            approach = self.samples.approach_frames(episode) if approach_only else None
+            grounding = self.samples.grounding_frames(episode) if grounding_frames_only else None
             for row, t in enumerate(range(0, length, feature_stride)):
-                if approach is None or approach[t]:
+                if grounding is None or grounding[t]:
                     rows.append((episode, t, row))
         if not rows:
-            raise ValueError("the selected episodes have no frames" + (" before a gripper change" if approach_only else ""))
+            raise ValueError("the selected episodes have no frames"
+                             + (" that train the grounding (before a gripper change)" if grounding_frames_only else ""))
         self.index = np.asarray(rows, dtype=np.int64)
         self._handles = _LRU(_open_safetensors, size=32)
 
@@ -328,7 +330,7 @@ class PolicyFeatureDataset:
         if "subgoal_position" in sample:
             item["subgoal_position"] = torch.from_numpy(np.asarray(sample["subgoal_position"], dtype=np.float32))
             item["subgoal_yaw"] = torch.from_numpy(np.asarray(sample["subgoal_yaw"], dtype=np.float32))
-            item["subgoal_is_approach"] = torch.tensor(bool(sample["subgoal_is_approach"]))
+            item["subgoal_in_loss"] = torch.tensor(bool(sample["subgoal_in_loss"]))
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
             if self.use_system2:
@@ -364,6 +366,6 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
     for key in ("dynamics_static", "dynamics_wrist", "subgoal_position", "subgoal_yaw"):
         if key in items[0]:
             batch[key] = torch.stack([it[key] for it in items]).float()
-    if "subgoal_is_approach" in items[0]:
-        batch["subgoal_is_approach"] = torch.stack([it["subgoal_is_approach"] for it in items])
+    if "subgoal_in_loss" in items[0]:
+        batch["subgoal_in_loss"] = torch.stack([it["subgoal_in_loss"] for it in items])
     return batch

@@ -435,7 +435,7 @@ def _prepare_data(config: TrainConfig, model: TriVLA, reader, env: DistEnv) -> t
         reader, episodes, shards, feature_stride=config.feature_stride,
         action_horizon=model.config.policy.action_horizon,
         use_system2=model.vision_language is not None, use_system3=model.dynamics is not None,
-        approach_only=config.grounding_phase == "bind", grounding_carry_tasks=tuple(config.grounding_carry_tasks),
+        grounding_frames_only=config.grounding_phase == "bind", grounding_carry_tasks=tuple(config.grounding_carry_tasks),
     )
     return dataset, ds.collate_policy, {"episodes": len(episodes), "samples": len(dataset), **summary}
 
