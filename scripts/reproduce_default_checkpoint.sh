@@ -602,3 +602,28 @@ if [[ "${DIAGNOSE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
       > results/stack_destinations/shipped.md
 fi
+# 32. Optional (CARRY=1; results/stack_carry/): the shipped model's instruction grounding bound again on MORE_DATA
+#     with the carrying frames of stack_block as well (--grounding-carry stack_block: from the last grasp to the
+#     release, labelled with the release position, so that the grounding reads the destination's colour); where
+#     the bound model carries the block, where its grounding puts the sub-goal along the shipped model's stack
+#     episodes, and its first colour (probe); System 1 following it 2500 steps (step 29's settings, seed 3);
+#     export, six seeds, and where the exported model carries the block.
+if [[ "${CARRY:-0}" == 1 ]]; then
+  mkdir -p results/stack_carry
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/carry_bind" --init models/trivla_cpu \
+      --grounding-phase bind --keep-grounding --grounding-carry stack_block --lr 1e-3 --warmup-steps 1 \
+      --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 --subgoal-offset
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/carry_bind/final" \
+      results/stack_carry/bind.json > results/stack_carry/bind.md
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_carry/bind_grounding.json \
+      --grounding "$RUNS/carry_bind/final" > results/stack_carry/bind_grounding.md
+  trivla-drake probe --checkpoint "$RUNS/carry_bind/final" --grounding-scenes 20 --threads 1 \
+      > results/stack_carry/grounding_check_carry_bind.md
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/carry_follow" --init "$RUNS/carry_bind/final" \
+      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/carry_follow/final" --out "$RUNS/carry_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/carry_export" results/stack_carry/carry
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/carry_export" \
+      results/stack_carry/carry_export.json > results/stack_carry/carry_export.md
+fi

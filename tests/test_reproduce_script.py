@@ -35,7 +35,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "DATA": "data/sim",
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
-           "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1",
+           "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -166,3 +166,17 @@ def test_the_data_efficiency_arm_trains_a_fresh_system1_on_a_tenth_of_the_shippe
     # collect's --episodes-per-task counts the folder's episodes so far: 3 from the start posture, then up to 8
     # with a prelude (MORE_DATA has 30 and 50 per task: results/more_preludes_ema/)
     assert [(int(option(a, "--episodes-per-task")), "--prelude-tasks" in a) for a in collected] == [(3, False), (8, True)]
+
+
+def test_the_carry_experiment_binds_the_shipped_grounding_on_stack_carries_then_follows(calls):
+    """Step 32: export <- follow <- bind (keeping the shipped model's grounding, with --grounding-carry
+    stack_block) on MORE_DATA, the data the shipped model's last runs trained on."""
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith("carry_export"))
+    follow = run_writing(calls, export[1].removesuffix("/final"))
+    bind = run_writing(calls, option(follow, "--init").removesuffix("/final"))
+    assert [option(a, "--grounding-phase") for a in (follow, bind)] == ["follow", "bind"]
+    assert option(bind, "--init") == "models/trivla_cpu" and "--keep-grounding" in bind
+    assert option(bind, "--grounding-carry") == option(follow, "--grounding-carry") == "stack_block"
+    shipped = run_writing(calls, "models/trivla_cpu")
+    longer = run_writing(calls, shipped[1].removesuffix("/final"))
+    assert option(bind, "--data") == option(follow, "--data") == option(longer, "--data")

@@ -7,8 +7,10 @@ destination (base) and to the other block; and
 whether the instruction grounding's sub-goal for that observation lies nearer the destination or the other
 block (a grounding model only). Usage, from the repository root:
 
-    python results/stack_destinations/stack_destinations.py CHECKPOINT|trivla OUT.json [SEEDS]
+    python results/stack_destinations/stack_destinations.py CHECKPOINT|trivla OUT.json [SEEDS] [--grounding CHECKPOINT]
 
+With `--grounding`, the sub-goal is asked of that checkpoint's grounding instead, along the trajectories of the
+first policy (which is then only the driver): another grounding judged on the same observations.
 SEEDS defaults to 1000,1001,1002,1003,1004,1005; two worker processes, torch at one thread each."""
 
 import json
@@ -25,10 +27,11 @@ IMAGE_SIZE = 224  # as `evaluate` renders for an image policy
 class _Logged:
     """The policy, and at each chunk it plans: which blocks are held and where they are."""
 
-    def __init__(self, inner, env):
+    def __init__(self, inner, env, asked=None):
         self.inner, self.env, self.log = inner, env, []
-        model = getattr(inner, "model", None)  # the oracle and models without a grounding: no sub-goal to ask
+        model = getattr(asked or inner, "model", None)  # the oracle and models without a grounding: nothing to ask
         self.grounded = model is not None and getattr(model.policy, "grounding", None) is not None
+        self.asked = model
 
     def __getattr__(self, name):
         return getattr(self.inner, name)
@@ -42,15 +45,15 @@ class _Logged:
         holding = {c: scene.is_held(c) for c in scene.blocks}
         subgoal = None
         if self.grounded and any(holding.values()):  # where the grounding puts the next event: a 2nd System 2 pass
-            subgoal = self.inner.model.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
-                                                       obs["state"])
+            subgoal = self.asked.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
+                                                 obs["state"])
         chunk = self.inner.act(obs)
         self.log.append((holding, {c: scene.block_position(c).copy() for c in scene.blocks}, subgoal))
         return chunk
 
 
 def episode(job: tuple) -> dict:
-    policy_spec, seed, index = job
+    policy_spec, seed, index, grounding_spec = job
     import torch
 
     torch.set_num_threads(1)
@@ -58,7 +61,7 @@ def episode(job: tuple) -> dict:
     from trivla_drake.eval.policies import load_policy
 
     env = shared_env(IMAGE_SIZE)
-    policy = _Logged(load_policy(policy_spec), env)
+    policy = _Logged(load_policy(policy_spec), env, load_policy(grounding_spec) if grounding_spec else None)
     result = run_episode(TASK, derive_seed(seed, TASK, index), policy, image_size=IMAGE_SIZE)
     top, base = result.params
     row = {"seed": seed, "index": index, "instruction": result.instruction, "success": result.success,
@@ -77,13 +80,19 @@ def episode(job: tuple) -> dict:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (3, 4):
+    args = sys.argv[1:]
+    grounding = None
+    if "--grounding" in args:
+        at = args.index("--grounding")
+        grounding = args[at + 1] if at + 1 < len(args) else sys.exit(__doc__)
+        del args[at : at + 2]
+    if len(args) not in (2, 3):
         sys.exit(__doc__)
-    seeds = [int(s) for s in (sys.argv[3] if len(sys.argv) == 4 else "1000,1001,1002,1003,1004,1005").split(",")]
-    jobs = [(sys.argv[1], seed, index) for seed in seeds for index in (0, 1)]
+    seeds = [int(s) for s in (args[2] if len(args) == 3 else "1000,1001,1002,1003,1004,1005").split(",")]
+    jobs = [(args[0], seed, index, grounding) for seed in seeds for index in (0, 1)]
     with ProcessPoolExecutor(2, mp_context=get_context("spawn")) as pool:
         rows = list(pool.map(episode, jobs))
-    with open(sys.argv[2], "w") as out:
+    with open(args[1], "w") as out:
         json.dump(rows, out, indent=1)
     print("| seed | episode | success | chunks holding the block | closest to destination / other [cm] | "
           "at the last such chunk [cm] | sub-goal nearer the destination (chunks) | instruction |")
