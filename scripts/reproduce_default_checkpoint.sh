@@ -607,7 +607,8 @@ fi
 #     release, labelled with the release position, so that the grounding reads the destination's colour); where
 #     the bound model carries the block, where its grounding puts the sub-goal along the shipped model's stack
 #     episodes, and its first colour (probe); System 1 following it 2500 steps (step 29's settings, seed 3);
-#     export, six seeds, and where the exported model carries the block.
+#     export, six seeds, where the exported model carries the block, and where each grounding puts the sub-goal
+#     before the grasp along the shipped model's stack episodes.
 if [[ "${CARRY:-0}" == 1 ]]; then
   mkdir -p results/stack_carry
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/carry_bind" --init models/trivla_cpu \
@@ -626,4 +627,7 @@ if [[ "${CARRY:-0}" == 1 ]]; then
   six_seeds "$RUNS/carry_export" results/stack_carry/carry
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/carry_export" \
       results/stack_carry/carry_export.json > results/stack_carry/carry_export.md
+  "${PYTHON:-python}" results/stack_carry/approach_subgoals.py trivla results/stack_carry/approach_shipped.json
+  "${PYTHON:-python}" results/stack_carry/approach_subgoals.py "$RUNS/carry_bind/final" \
+      results/stack_carry/approach_bind.json
 fi
