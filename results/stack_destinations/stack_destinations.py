@@ -27,8 +27,8 @@ IMAGE_SIZE = 224  # as `evaluate` renders for an image policy
 class _Logged:
     """The policy, and at each chunk it plans: which blocks are held and where they are."""
 
-    def __init__(self, inner, env, asked=None):
-        self.inner, self.env, self.log = inner, env, []
+    def __init__(self, inner, env, asked=None, ask_while_held=True):
+        self.inner, self.env, self.log, self.ask_while_held = inner, env, [], ask_while_held
         model = getattr(asked or inner, "model", None)  # the oracle and models without a grounding: nothing to ask
         self.grounded = model is not None and getattr(model.policy, "grounding", None) is not None
         self.asked = model
@@ -44,7 +44,7 @@ class _Logged:
         scene = self.env.scene()
         holding = {c: scene.is_held(c) for c in scene.blocks}
         subgoal = None
-        if self.grounded and any(holding.values()):  # where the grounding puts the next event: a 2nd System 2 pass
+        if self.grounded and any(holding.values()) == self.ask_while_held:  # the next event: a 2nd System 2 pass
             subgoal = self.asked.predict_subgoal(obs["static_rgb"], obs["wrist_rgb"], obs["instruction"],
                                                  obs["state"])
         chunk = self.inner.act(obs)
