@@ -348,6 +348,13 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
         build_model(dataclasses.replace(again, init=init, keep_grounding=True), None)
     with pytest.raises(ValueError, match="grounding_reads_tcp.*follow run keeps.*bind one with"):
         build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_tcp=True), None)
+    with pytest.raises(ValueError, match="grounding_reads_gripper.*follow run keeps.*bind one with"):
+        build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_gripper=True), None)
+    # --keep-grounding --grounding-reads-gripper: the bound grounding, with a gripper path at zero
+    gripped = build_model(dataclasses.replace(again, keep_grounding=True, grounding_reads_gripper=True), None)
+    assert all(torch.equal(gripped.policy.grounding.state_dict()[k], v)
+               for k, v in after.policy.grounding.state_dict().items())
+    assert not gripped.policy.grounding.gripper.weight.any()
     for bad in (dict(grounding_phase="follow"), dict(init=None)):
         with pytest.raises(ValueError, match=r"keep_grounding \(--keep-grounding\).*bind and --init"):
             dataclasses.replace(again, keep_grounding=True, **bad).validate()

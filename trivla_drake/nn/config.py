@@ -226,6 +226,13 @@ class PolicyConfig:
     # needs the robot state (`TriVLA.predict_subgoal(..., state=)`). Off in checkpoints saved before it
     # existed; `train --stage policy --grounding-phase bind --grounding-reads-tcp` turns it on.
     grounding_reads_tcp: bool = False
+    # The instruction grounding also reads how far the gripper is closed (nn/panda_gripper.py): one
+    # instruction can then name one block before the grasp and another after it ("stack the red block
+    # on the blue one"); taught the carrying frames without it, the grounding named the second block
+    # before the grasp too (results/stack_carry). Needs instruction_grounding; the grounding then needs
+    # the robot state. Off in checkpoints saved before it existed; `train --stage policy --grounding-phase
+    # bind --grounding-reads-gripper` turns it on.
+    grounding_reads_gripper: bool = False
     # The instruction grounding also predicts the hand's yaw at the next gripper event, modulo a quarter
     # turn (cos 4 psi, sin 4 psi), and an MLP of it and of the turn from the hand's yaw to it is added
     # to Q_s. In the shipped model before it, most failed grasps came down 40-45 degrees off the block's
@@ -320,6 +327,9 @@ def validate_config(config: TriVLAConfig) -> None:
     if pol.grounding_reads_tcp and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.grounding_reads_tcp gives the instruction grounding the tcp features: it needs "
                          "policy.instruction_grounding and policy.tcp_features")
+    if pol.grounding_reads_gripper and not pol.instruction_grounding:
+        raise ValueError("policy.grounding_reads_gripper gives the instruction grounding the gripper's closure: it "
+                         "needs policy.instruction_grounding")
     if pol.subgoal_yaw and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_yaw turns the grounding's yaw into a turn from the hand's yaw: it needs "
                          "policy.instruction_grounding and policy.tcp_features")

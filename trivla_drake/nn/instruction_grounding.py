@@ -14,6 +14,10 @@ hand's yaw at that event modulo a quarter turn, as (cos 4 psi, sin 4 psi) (data/
 way the block's faces turn: most of the shipped model's failed grasps came down 40-45 degrees off the
 faces, its fingers on the block's top. (Read from the images, this yaw learnt a shortcut from the
 demonstrations, in which the hand is always turned right near the block: results/grasp_yaw.)
+With `reads_gripper`, the instruction's tokens also carry how far the gripper is closed
+(nn/panda_gripper.py): "stack the red block on the blue one" names the red block before the grasp and
+the blue one after it, and without the phase a grounding taught both answered the blue one too early
+(results/stack_carry).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn.attention import MultiHeadAttention
+from trivla_drake.nn.panda_gripper import FEATURE_DIM as GRIPPER_FEATURE_DIM
 from trivla_drake.nn.panda_tcp import normalize_position
 
 
@@ -38,9 +43,17 @@ class InstructionGrounding(nn.Module):
     A mean of the instruction's tokens as one query would dilute the one word that names the object
     among the others (it did: its sub-goal hardly changed with the colour word)."""
 
-    def __init__(self, dim: int, num_heads: int, tcp_dim: int = 0, yaw_tokens: int = 0) -> None:
+    def __init__(self, dim: int, num_heads: int, tcp_dim: int = 0, yaw_tokens: int = 0,
+                 reads_gripper: bool = False) -> None:
         super().__init__()
         self.tcp_dim = tcp_dim
+        # The gripper's closure (B, 1) moves every instruction token by one learned direction times it
+        # (`reads_gripper`), so its queries can look for another word's colour once a block is held. No
+        # bias and zero at the start: with the fingers open (every frame before a grasp) the grounding
+        # is exactly the one it was, however this path learns.
+        self.gripper = nn.Linear(GRIPPER_FEATURE_DIM, dim, bias=False) if reads_gripper else None
+        if self.gripper is not None:
+            nn.init.zeros_(self.gripper.weight)
         # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
         # over 5 neighbouring tokens (the longest colour word) composes them.
         self.compose = nn.Conv1d(dim, dim, kernel_size=5, padding=2)
@@ -76,11 +89,13 @@ class InstructionGrounding(nn.Module):
         instruction_mask: torch.Tensor,
         image_tokens: torch.Tensor,
         tcp: torch.Tensor | None = None,
+        gripper: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each instruction token's query attends over the image tokens; their read-outs and queries
         are averaged with softmax weights of the tokens' scores (masked tokens get none). `tcp`
         (B, tcp_dim): the tool-centre point's features, required when built with tcp_dim > 0 and
-        refused otherwise. Returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in
+        refused otherwise; `gripper` (B, 1): the gripper's closure (panda_gripper), likewise with
+        `reads_gripper`. Returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in
         feature units, followed with `yaw_tokens` by its (cos 4 psi, sin 4 psi) (B, 5 in all)."""
         batch = instruction.shape[0]
         if self.tcp_skip is None and tcp is not None:
@@ -89,8 +104,16 @@ class InstructionGrounding(nn.Module):
             got = None if tcp is None else tuple(tcp.shape)
             raise ValueError(f"tcp must be ({batch}, {self.tcp_dim}), the tool-centre point's features "
                              f"(policy.grounding_reads_tcp); got {got}")
+        if self.gripper is None and gripper is not None:
+            raise ValueError("gripper was given to an instruction grounding built without reads_gripper")
+        if self.gripper is not None and (gripper is None or tuple(gripper.shape) != (batch, GRIPPER_FEATURE_DIM)):
+            got = None if gripper is None else tuple(gripper.shape)
+            raise ValueError(f"gripper must be ({batch}, {GRIPPER_FEATURE_DIM}), the gripper's closure "
+                             f"(policy.grounding_reads_gripper); got {got}")
         kept = instruction * instruction_mask.unsqueeze(-1).to(instruction.dtype)
         instruction = instruction + self.compose(kept.transpose(1, 2)).transpose(1, 2)
+        if self.gripper is not None:
+            instruction = instruction + self.gripper(gripper.to(instruction.dtype)).unsqueeze(1)
         queries = self.query(instruction)
         reads = self.attention(queries, image_tokens)
         scores = self.score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))

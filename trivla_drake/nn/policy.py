@@ -193,13 +193,15 @@ class FlowMatchingPolicy(nn.Module):
         q_vl_mask: torch.Tensor | None,
         q_p: torch.Tensor | None,
         tcp: torch.Tensor | None = None,
+        gripper: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
         configured (and, with `subgoal_offset`, the sub-goal seen from the tcp position); the
         cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M); the grounding's
         predicted sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then its yaw's
         (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
-        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw` or `grounding_reads_tcp`."""
+        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw` or `grounding_reads_tcp`.
+        `gripper` (B, 1): the gripper's closure (panda_gripper), needed with `grounding_reads_gripper`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -210,7 +212,7 @@ class FlowMatchingPolicy(nn.Module):
                     got = None if tcp is None else tuple(tcp.shape)
                     raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
                                      f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp); got {got}")
-                goal, subgoal = self._ground(vl, vl_mask, tcp)
+                goal, subgoal = self._ground(vl, vl_mask, tcp, gripper)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
                     q_s = q_s + self.subgoal_offset(subgoal[:, :3], tcp[:, :3]).to(q_s.dtype)
@@ -248,12 +250,14 @@ class FlowMatchingPolicy(nn.Module):
     def _new_grounding(self) -> InstructionGrounding:
         c = self.config
         return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0,
-                                    yaw_tokens=self.vl_fixed_positions if c.subgoal_yaw else 0)
+                                    yaw_tokens=self.vl_fixed_positions if c.subgoal_yaw else 0,
+                                    reads_gripper=c.grounding_reads_gripper)
 
-    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None,
+                gripper: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         fixed = self.vl_fixed_positions
         tcp = tcp if self.config.grounding_reads_tcp else None
-        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], tcp)
+        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], tcp, gripper)
 
     def reset_grounding(self) -> None:
         """A fresh instruction grounding in place of this one (drawn from torch's global generator)."""
@@ -276,14 +280,15 @@ class FlowMatchingPolicy(nn.Module):
                 or name.split(".")[0] in ("vl_norm", "vl_proj", "vl_position")}
 
     def predict_subgoal(
-        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None
+        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None,
+        gripper: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """The instruction grounding's sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then
         its yaw's (cos 4 psi, sin 4 psi)), from Q_vl (and, with `grounding_reads_tcp`, the tcp
-        features (B, 9))."""
+        features (B, 9); with `grounding_reads_gripper`, the gripper's closure (B, 1))."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
-        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp)[1]
+        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp, gripper)[1]
 
     # ------------------------------------------------------------------ flow matching
 

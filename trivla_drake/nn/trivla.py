@@ -22,6 +22,7 @@ from trivla_drake.nn.instruction_grounding import grounding_loss
 from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
+from trivla_drake.nn.panda_gripper import gripper_closure
 from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
@@ -262,11 +263,21 @@ class TriVLA(nn.Module):
     def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):
         """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
         memory mask, predicted sub-goal or None. `state` (B, state_dim), unnormalised, is read only
-        with policy.subgoal_offset or policy.grounding_reads_tcp (the tcp features); ValueError when
-        such a model gets none."""
+        with policy.subgoal_offset or policy.grounding_reads_tcp (the tcp features) or
+        policy.grounding_reads_gripper (the gripper's closure); ValueError when such a model gets none."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
         return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
-                                      self._tcp_for_policy(state, q_s.dtype))
+                                      self._tcp_for_policy(state, q_s.dtype), self._gripper_for_grounding(state))
+
+    def _gripper_for_grounding(self, state: torch.Tensor | None) -> torch.Tensor | None:
+        """The gripper's closure (B, 1) of unnormalised states when System 1's grounding reads it
+        (policy.grounding_reads_gripper), else None."""
+        if not (self.config.policy.grounding_reads_gripper and self.policy.grounding is not None):
+            return None
+        if state is None:
+            raise ValueError("state is required: this model's instruction grounding reads the gripper's closure "
+                             "(policy.grounding_reads_gripper), which it computes from the robot state")
+        return gripper_closure(torch.as_tensor(state, device=self.device)).float()
 
     def _tcp_for_policy(self, state: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor | None:
         """The tcp features (B, 9) of unnormalised states when System 1 reads them beyond Q_s
@@ -293,7 +304,8 @@ class TriVLA(nn.Module):
         state: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A).
-        `state` (B, state_dim), unnormalised: needed only with policy.subgoal_offset."""
+        `state` (B, state_dim), unnormalised: needed only with policy.subgoal_offset (or another option
+        that reads the tcp or the gripper: subgoal_yaw, grounding_reads_tcp, grounding_reads_gripper)."""
         embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
         check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
         q_s, memory, mask, _ = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
@@ -357,11 +369,15 @@ class TriVLA(nn.Module):
         if state is None and pol.grounding_reads_tcp:
             raise ValueError("state is required: this model's grounding reads the tool-centre point "
                              "(policy.grounding_reads_tcp)")
+        if state is None and pol.grounding_reads_gripper:
+            raise ValueError("state is required: this model's grounding reads the gripper's closure "
+                             "(policy.grounding_reads_gripper)")
         state = check_state("state", np.zeros(pol.state_dim) if state is None else state, pol.state_dim)
         q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
-        tcp = self.tcp_features(torch.from_numpy(state)[None].to(self.device)).float() if pol.grounding_reads_tcp else None
+        state_row = torch.from_numpy(state)[None].to(self.device)
+        tcp = self.tcp_features(state_row).float() if pol.grounding_reads_tcp else None
         subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
-                                              tcp=tcp)
+                                              tcp=tcp, gripper=self._gripper_for_grounding(state_row))
         return subgoal[0].double().cpu()
 
     @torch.inference_mode()
@@ -579,13 +595,17 @@ class TriVLA(nn.Module):
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         with torch.no_grad():
             q_vl, q_vl_mask = self._batch_q_vl(batch)
-        tcp = None
-        if self.config.policy.grounding_reads_tcp:
-            if "state" not in batch:
-                raise ValueError("batch is missing 'state': this grounding reads the tool-centre point "
-                                 "(policy.grounding_reads_tcp)")
+        tcp = gripper = None
+        pol = self.config.policy
+        for reads, field, what in ((pol.grounding_reads_tcp, "grounding_reads_tcp", "the tool-centre point"),
+                                   (pol.grounding_reads_gripper, "grounding_reads_gripper", "the gripper's closure")):
+            if reads and "state" not in batch:
+                raise ValueError(f"batch is missing 'state': this grounding reads {what} (policy.{field})")
+        if pol.grounding_reads_tcp:
             tcp = self.tcp_features(self._batch_tensor(batch, "state")).to(q_vl.dtype)
-        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask, tcp))
+        if pol.grounding_reads_gripper:
+            gripper = self._gripper_for_grounding(self._batch_tensor(batch, "state")).to(q_vl.dtype)
+        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask, tcp, gripper))
         return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
 
     def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:

@@ -77,6 +77,7 @@ def config_from_args(args: argparse.Namespace):
         system2_from=args.system2_from,
         fresh_system1=args.fresh_system1,
         grounding_reads_tcp=args.grounding_reads_tcp,
+        grounding_reads_gripper=args.grounding_reads_gripper,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -215,6 +216,11 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--grounding-reads-tcp", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
                              "point's features, to place its sub-goal from the wrist view (added when --init's "
+                             "grounding reads none)")
+    parser.add_argument("--grounding-reads-gripper", action="store_true",
+                        help="policy, with --grounding-weight: the instruction grounding also reads how far the "
+                             "gripper is closed, so an instruction can name one block before the grasp and another "
+                             "after it (use with --grounding-carry; added, starting at zero, when --init's "
                              "grounding reads none)")
     parser.add_argument("--subgoal-offset", action="store_true",
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "

@@ -201,6 +201,11 @@ class TrainConfig:
     # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
     # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
     grounding_reads_tcp: bool = False
+    # policy stage, with a grounding: the grounding also reads how far the gripper is closed
+    # (`PolicyConfig.grounding_reads_gripper`), so one instruction can name one block before the grasp and
+    # another after it (with --grounding-carry); a bind run from a checkpoint whose grounding reads none
+    # adds the path (starting at zero, so the grounding with open fingers is the checkpoint's).
+    grounding_reads_gripper: bool = False
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
@@ -329,6 +334,10 @@ class TrainConfig:
             raise ValueError("grounding_reads_tcp (--grounding-reads-tcp) gives System 1's instruction grounding the "
                              "tcp features: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
                              "the tcp features (drop --no-tcp-features)")
+        if self.grounding_reads_gripper and not (self.stage == "policy" and self.grounding_weight > 0):
+            raise ValueError("grounding_reads_gripper (--grounding-reads-gripper) gives System 1's instruction "
+                             "grounding the gripper's closure: it needs the policy stage and grounding_weight "
+                             "(--grounding-weight) > 0")
         if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
             raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
                              "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "

@@ -63,6 +63,7 @@ def apply_ablations(
     grounding_reads_tcp: bool = False,
     subgoal_yaw: bool = False,
     dense_subcells: int | None = None,
+    grounding_reads_gripper: bool = False,
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), rebuilt when anything changes (keeping every weight that still fits), with:
@@ -74,7 +75,9 @@ def apply_ablations(
     - `subgoal_offset`: a fresh sub-goal offset encoder (output at zero) where it has none;
     - `grounding_reads_tcp`: a grounding that reads the tcp features (its sub-goal head's first layer
       and tcp path fresh) where it reads none;
-    - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none.
+    - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none;
+    - `grounding_reads_gripper`: a grounding that reads the gripper's closure (that path fresh, at zero)
+      where it reads none.
     A system missing from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -92,17 +95,20 @@ def apply_ablations(
     offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
     reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
     yaw = grounding and tcp and (cfg.policy.subgoal_yaw or subgoal_yaw)
+    reads_gripper = grounding and (cfg.policy.grounding_reads_gripper or grounding_reads_gripper)
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
             cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp,
-            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw, subcells):
+            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells, cfg.policy.grounding_reads_gripper) == (
+            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw, subcells,
+            reads_gripper):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
                                    instruction_grounding=grounding, subgoal_offset=offset,
-                                   grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw),
+                                   grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw,
+                                   grounding_reads_gripper=reads_gripper),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes,
                                             dense_subcells=subcells),
     )
@@ -181,6 +187,7 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
                                         instruction_grounding=config.grounding_weight > 0,
                                         subgoal_offset=config.subgoal_offset,
                                         grounding_reads_tcp=config.grounding_reads_tcp,
+                                        grounding_reads_gripper=config.grounding_reads_gripper,
                                         subgoal_yaw=config.subgoal_yaw),
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
@@ -210,13 +217,19 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow" and config.subgoal_yaw and not model.config.policy.subgoal_yaw:
             raise ValueError(f"subgoal_yaw (--subgoal-yaw) adds a yaw head to the instruction grounding, which a "
                              f"follow run keeps as its {where} has it (with none): bind one with --subgoal-yaw first")
+        if (config.grounding_phase == "follow" and config.grounding_reads_gripper
+                and not model.config.policy.grounding_reads_gripper):
+            raise ValueError(f"grounding_reads_gripper (--grounding-reads-gripper) changes the instruction grounding, "
+                             f"which a follow run keeps as its {where} has it (reading no gripper): bind one with "
+                             f"--grounding-reads-gripper first")
         if config.keep_grounding and model.policy.grounding is None:
             raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
                              f"which has none: bind one without --keep-grounding first")
         model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
                                 config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp,
-                                config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None)
+                                config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None,
+                                config.grounding_reads_gripper)
         if config.system2_from is not None:
             model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
         if config.fresh_system1:
