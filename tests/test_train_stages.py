@@ -350,11 +350,19 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
         build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_tcp=True), None)
     with pytest.raises(ValueError, match="grounding_reads_gripper.*follow run keeps.*bind one with"):
         build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_gripper=True), None)
-    # --keep-grounding --grounding-reads-gripper: the bound grounding, with a gripper path at zero
-    gripped = build_model(dataclasses.replace(again, keep_grounding=True, grounding_reads_gripper=True), None)
-    assert all(torch.equal(gripped.policy.grounding.state_dict()[k], v)
-               for k, v in after.policy.grounding.state_dict().items())
-    assert not gripped.policy.grounding.gripper.weight.any()
+    # --keep-grounding --grounding-reads-gripper --bind-held-only: only the held-block read-out (a copy of the
+    # bound read-out) trains; every other weight and the feature statistics stay the bound checkpoint's (on
+    # other data, whose statistics differ)
+    held_data = write_synthetic_dataset(tmp_path / "held_data", episodes=3, length=24, tcp_pose=True, seed=2)
+    held_only = train(TrainConfig(stage="policy", data=held_data, out=str(tmp_path / "held"), init=bound["final_checkpoint"],
+                                  steps=2, grounding_weight=1.0, grounding_phase="bind", keep_grounding=True,
+                                  grounding_reads_gripper=True, bind_held_only=True, **runs["common"]))
+    gripped = load_checkpoint(held_only["final_checkpoint"])
+    held = set(gripped.policy.held_parameters())
+    assert held and all(name.startswith("grounding.held.") for name in held)
+    mine = gripped.policy.state_dict()
+    for name, value in after.policy.state_dict().items():
+        assert torch.equal(mine[name], value), name
     for bad in (dict(grounding_phase="follow"), dict(init=None)):
         with pytest.raises(ValueError, match=r"keep_grounding \(--keep-grounding\).*bind and --init"):
             dataclasses.replace(again, keep_grounding=True, **bad).validate()

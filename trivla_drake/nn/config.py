@@ -226,12 +226,12 @@ class PolicyConfig:
     # needs the robot state (`TriVLA.predict_subgoal(..., state=)`). Off in checkpoints saved before it
     # existed; `train --stage policy --grounding-phase bind --grounding-reads-tcp` turns it on.
     grounding_reads_tcp: bool = False
-    # The instruction grounding also reads how far the gripper is closed (nn/panda_gripper.py): one
-    # instruction can then name one block before the grasp and another after it ("stack the red block
-    # on the blue one"); taught the carrying frames without it, the grounding named the second block
-    # before the grasp too (results/stack_carry). Needs instruction_grounding; the grounding then needs
-    # the robot state. Off in checkpoints saved before it existed; `train --stage policy --grounding-phase
-    # bind --grounding-reads-gripper` turns it on.
+    # The instruction grounding also reads how far the gripper is closed (nn/panda_gripper.py), and a
+    # second read-out answers while a block is held: one instruction can then name one block before the
+    # grasp and another after it ("stack the red block on the blue one"); taught the carrying frames with
+    # one read-out, the grounding put the sub-goal between the two before the grasp (results/stack_carry).
+    # Needs instruction_grounding; the grounding then needs the robot state. Off in checkpoints saved
+    # before it existed; `train --stage policy --grounding-phase bind --grounding-reads-gripper` turns it on.
     grounding_reads_gripper: bool = False
     # The instruction grounding also predicts the hand's yaw at the next gripper event, modulo a quarter
     # turn (cos 4 psi, sin 4 psi), and an MLP of it and of the turn from the hand's yaw to it is added

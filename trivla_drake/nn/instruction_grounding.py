@@ -14,10 +14,10 @@ hand's yaw at that event modulo a quarter turn, as (cos 4 psi, sin 4 psi) (data/
 way the block's faces turn: most of the shipped model's failed grasps came down 40-45 degrees off the
 faces, its fingers on the block's top. (Read from the images, this yaw learnt a shortcut from the
 demonstrations, in which the hand is always turned right near the block: results/grasp_yaw.)
-With `reads_gripper`, the instruction's tokens also carry how far the gripper is closed
-(nn/panda_gripper.py): "stack the red block on the blue one" names the red block before the grasp and
-the blue one after it, and without the phase a grounding taught both answered the blue one too early
-(results/stack_carry).
+With `reads_gripper`, a second read-out (its own queries, scores and sub-goal head) answers while a
+block is held (nn/panda_gripper.py): "stack the red block on the blue one" names the red block before
+the grasp and the blue one after it. Taught both with one read-out, a grounding put the sub-goal between
+the two blocks before the grasp on unseen scenes (results/stack_carry, results/stack_phase).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn.attention import MultiHeadAttention
-from trivla_drake.nn.panda_gripper import FEATURE_DIM as GRIPPER_FEATURE_DIM
+from trivla_drake.nn.panda_gripper import FEATURE_DIM as GRIPPER_FEATURE_DIM, holding_block
 from trivla_drake.nn.panda_tcp import normalize_position
 
 
@@ -47,13 +47,6 @@ class InstructionGrounding(nn.Module):
                  reads_gripper: bool = False) -> None:
         super().__init__()
         self.tcp_dim = tcp_dim
-        # The gripper's closure (B, 1) moves every instruction token by one learned direction times it
-        # (`reads_gripper`), so its queries can look for another word's colour once a block is held. No
-        # bias and zero at the start: with the fingers open (every frame before a grasp) the grounding
-        # is exactly the one it was, however this path learns.
-        self.gripper = nn.Linear(GRIPPER_FEATURE_DIM, dim, bias=False) if reads_gripper else None
-        if self.gripper is not None:
-            nn.init.zeros_(self.gripper.weight)
         # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
         # over 5 neighbouring tokens (the longest colour word) composes them.
         self.compose = nn.Conv1d(dim, dim, kernel_size=5, padding=2)
@@ -64,6 +57,14 @@ class InstructionGrounding(nn.Module):
         # The head reads the chosen query too: the sub-goal is where the named object is, shifted by
         # what the task does with it (a push ends beside the block, a lift above it).
         self.subgoal_head = nn.Sequential(nn.Linear(2 * dim + tcp_dim, dim), nn.SiLU(), nn.Linear(dim, 3))
+        # `reads_gripper`: the read-out used while a block is held (panda_gripper.holding_block), the same
+        # three parts again. The words and the image tokens' attention are shared; what differs is whose
+        # look counts and where the sub-goal goes. `start_held_from_open` copies the other read-out into it.
+        self.held = nn.ModuleDict({
+            "query": nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, dim)),
+            "score": nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 1)),
+            "subgoal_head": nn.Sequential(nn.Linear(2 * dim + tcp_dim, dim), nn.SiLU(), nn.Linear(dim, 3)),
+        }) if reads_gripper else None
         # With the tool-centre point's features (`tcp_dim` > 0, PolicyConfig.grounding_reads_tcp) the
         # head can place the sub-goal from the wrist view, relative to the gripper: a block seen in the
         # wrist view is an offset from the tcp, which a linear path adds (starting at zero).
@@ -104,27 +105,24 @@ class InstructionGrounding(nn.Module):
             got = None if tcp is None else tuple(tcp.shape)
             raise ValueError(f"tcp must be ({batch}, {self.tcp_dim}), the tool-centre point's features "
                              f"(policy.grounding_reads_tcp); got {got}")
-        if self.gripper is None and gripper is not None:
+        if self.held is None and gripper is not None:
             raise ValueError("gripper was given to an instruction grounding built without reads_gripper")
-        if self.gripper is not None and (gripper is None or tuple(gripper.shape) != (batch, GRIPPER_FEATURE_DIM)):
+        if self.held is not None and (gripper is None or tuple(gripper.shape) != (batch, GRIPPER_FEATURE_DIM)):
             got = None if gripper is None else tuple(gripper.shape)
             raise ValueError(f"gripper must be ({batch}, {GRIPPER_FEATURE_DIM}), the gripper's closure "
                              f"(policy.grounding_reads_gripper); got {got}")
         kept = instruction * instruction_mask.unsqueeze(-1).to(instruction.dtype)
         instruction = instruction + self.compose(kept.transpose(1, 2)).transpose(1, 2)
-        if self.gripper is not None:
-            instruction = instruction + self.gripper(gripper.to(instruction.dtype)).unsqueeze(1)
-        queries = self.query(instruction)
-        reads = self.attention(queries, image_tokens)
-        scores = self.score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
-        weights = torch.softmax(scores, dim=-1).nan_to_num(0.0).unsqueeze(-1)  # an all-masked row: zeros
-        read = self.norm((weights * reads).sum(1))
-        head_input = [read, (weights * queries).sum(1)]
-        if self.tcp_skip is not None:
-            tcp = tcp.to(read.dtype)
-            head_input.append(tcp)
-        head_input = torch.cat(head_input, dim=-1)
-        subgoal = self.subgoal_head(head_input)
+        if tcp is not None:
+            tcp = tcp.to(instruction.dtype)
+        read, subgoal = self._read(instruction, instruction_mask, image_tokens, tcp,
+                                   self.query, self.score, self.subgoal_head)
+        if self.held is not None:
+            # Both read-outs run on every row (a batch may mix phases, and every weight stays in the graph).
+            held_read, held_subgoal = self._read(instruction, instruction_mask, image_tokens, tcp,
+                                                 self.held["query"], self.held["score"], self.held["subgoal_head"])
+            held = holding_block(gripper).unsqueeze(-1)
+            read, subgoal = torch.where(held, held_read, read), torch.where(held, held_subgoal, subgoal)
         if self.tcp_skip is not None:
             subgoal = subgoal + self.tcp_skip(tcp)
         goal = self.goal(torch.cat([read, subgoal], dim=-1))
@@ -136,6 +134,31 @@ class InstructionGrounding(nn.Module):
             yaw = self.yaw_head(self.yaw_project(image_tokens.detach()).flatten(1))
             subgoal = torch.cat([subgoal, yaw], dim=-1)
         return goal, subgoal
+
+    def _read(self, instruction, instruction_mask, image_tokens, tcp, query, score, subgoal_head):
+        """One read-out: each token's query attends over the image tokens; their reads and queries are
+        averaged with softmax weights of the tokens' scores -> the read (B, D) and the sub-goal (B, 3)."""
+        queries = query(instruction)
+        reads = self.attention(queries, image_tokens)
+        scores = score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
+        weights = torch.softmax(scores, dim=-1).nan_to_num(0.0).unsqueeze(-1)  # an all-masked row: zeros
+        read = self.norm((weights * reads).sum(1))
+        head_input = [read, (weights * queries).sum(1)] + ([tcp] if tcp is not None else [])
+        return read, subgoal_head(torch.cat(head_input, dim=-1))
+
+    def start_held_from_open(self) -> None:
+        """The held-block read-out set to a copy of the other one (a bind run that adds it starts here:
+        the same answers in both phases, then only the carrying frames move it)."""
+        if self.held is None:
+            raise ValueError("this instruction grounding has no held-block read-out (built without reads_gripper)")
+        for name in ("query", "score", "subgoal_head"):
+            self.held[name].load_state_dict(getattr(self, name).state_dict())
+
+    def held_parameters(self) -> dict[str, nn.Parameter]:
+        """The held-block read-out's parameters by name (relative to this module)."""
+        if self.held is None:
+            raise ValueError("this instruction grounding has no held-block read-out (built without reads_gripper)")
+        return {f"held.{name}": p for name, p in self.held.named_parameters()}
 
 
 def grounding_loss(

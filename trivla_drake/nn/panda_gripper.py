@@ -4,8 +4,8 @@ The state is laid out as the station's `panda.state` port: 7 arm joint angles [r
 finger positions [m] (each finger's travel from the centre, 0 to 0.04), then 9 velocities. The
 gripper's closure is 0 with the fingers fully open and 1 with them touching; holding one of the
 suite's blocks (4.5 cm across) it is about 0.44. It tells a stack instruction's two phases apart:
-before the grasp the instruction names the block to pick up, after it the block to put it on
-(results/stack_phase).
+before the grasp the instruction names the block to pick up, while the block is held the block to put it
+on (results/stack_phase).
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ import torch
 MAX_GRIPPER_WIDTH = 0.08
 FINGER_STATE_INDICES = (7, 8)  # the finger positions' entries of the state
 FEATURE_DIM = 1
+# The closures at which a block is held: fingers 2-6 cm apart. The suite's blocks (4.5 cm) give 0.44; fully
+# open gives 0 and closed on nothing (a push) 1; the drawer's handle and the light's button are thinner.
+HELD_CLOSURE = (0.25, 0.75)
 
 
 def gripper_closure(state: torch.Tensor) -> torch.Tensor:
@@ -27,3 +30,9 @@ def gripper_closure(state: torch.Tensor) -> torch.Tensor:
                          f"{FINGER_STATE_INDICES}; got {tuple(state.shape)}")
     width = state[:, FINGER_STATE_INDICES[0]] + state[:, FINGER_STATE_INDICES[1]]
     return (1.0 - width / MAX_GRIPPER_WIDTH).unsqueeze(-1)
+
+
+def holding_block(closure: torch.Tensor) -> torch.Tensor:
+    """Closures (B, 1) -> bool (B,): whether the fingers are closed on a block (within HELD_CLOSURE)."""
+    low, high = HELD_CLOSURE
+    return ((closure >= low) & (closure <= high)).squeeze(-1)

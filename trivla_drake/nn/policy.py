@@ -279,6 +279,13 @@ class FlowMatchingPolicy(nn.Module):
                 if (name.startswith("grounding.") and not name.startswith("grounding.goal."))
                 or name.split(".")[0] in ("vl_norm", "vl_proj", "vl_position")}
 
+    def held_parameters(self) -> dict[str, nn.Parameter]:
+        """The instruction grounding's held-block read-out by name (`grounding_reads_gripper`): what a bind
+        run with `bind_held_only` trains, leaving the answers with no block held as they were."""
+        if self.grounding is None:
+            raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
+        return {f"grounding.{name}": p for name, p in self.grounding.held_parameters().items()}
+
     def predict_subgoal(
         self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None,
         gripper: torch.Tensor | None = None,

@@ -78,6 +78,7 @@ def config_from_args(args: argparse.Namespace):
         fresh_system1=args.fresh_system1,
         grounding_reads_tcp=args.grounding_reads_tcp,
         grounding_reads_gripper=args.grounding_reads_gripper,
+        bind_held_only=args.bind_held_only,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
         keep_checkpoints=args.keep_checkpoints,
@@ -219,9 +220,12 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "grounding reads none)")
     parser.add_argument("--grounding-reads-gripper", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads how far the "
-                             "gripper is closed, so an instruction can name one block before the grasp and another "
-                             "after it (use with --grounding-carry; added, starting at zero, when --init's "
-                             "grounding reads none)")
+                             "gripper is closed and answers with a second read-out while a block is held, so an "
+                             "instruction can name one block before the grasp and another after it (use with "
+                             "--grounding-carry; added as a copy of the read-out when --init's grounding has none)")
+    parser.add_argument("--bind-held-only", action="store_true",
+                        help="bind, with --keep-grounding --grounding-reads-gripper: train only the held-block "
+                             "read-out, so the answers with no block held stay --init's exactly")
     parser.add_argument("--subgoal-offset", action="store_true",
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "

@@ -201,11 +201,14 @@ class TrainConfig:
     # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
     # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
     grounding_reads_tcp: bool = False
-    # policy stage, with a grounding: the grounding also reads how far the gripper is closed
-    # (`PolicyConfig.grounding_reads_gripper`), so one instruction can name one block before the grasp and
-    # another after it (with --grounding-carry); a bind run from a checkpoint whose grounding reads none
-    # adds the path (starting at zero, so the grounding with open fingers is the checkpoint's).
+    # policy stage, with a grounding: the grounding also reads how far the gripper is closed and answers
+    # with a second read-out while a block is held (`PolicyConfig.grounding_reads_gripper`), so one
+    # instruction can name one block before the grasp and another after it (with --grounding-carry); a bind
+    # run from a checkpoint whose grounding reads none adds it, a copy of the grounding's read-out.
     grounding_reads_gripper: bool = False
+    # bind phase with grounding_reads_gripper and keep_grounding: train only the held-block read-out, so the
+    # grounding's answers with no block held stay exactly --init's (and System 1's inputs with them).
+    bind_held_only: bool = False
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
@@ -338,6 +341,10 @@ class TrainConfig:
             raise ValueError("grounding_reads_gripper (--grounding-reads-gripper) gives System 1's instruction "
                              "grounding the gripper's closure: it needs the policy stage and grounding_weight "
                              "(--grounding-weight) > 0")
+        if self.bind_held_only and not (self.grounding_phase == "bind" and self.keep_grounding
+                                        and self.grounding_reads_gripper):
+            raise ValueError("bind_held_only (--bind-held-only) trains only the grounding's held-block read-out: it "
+                             "needs --grounding-phase bind, --keep-grounding and --grounding-reads-gripper")
         if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
             raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
                              "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "

@@ -76,8 +76,8 @@ def apply_ablations(
     - `grounding_reads_tcp`: a grounding that reads the tcp features (its sub-goal head's first layer
       and tcp path fresh) where it reads none;
     - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none;
-    - `grounding_reads_gripper`: a grounding that reads the gripper's closure (that path fresh, at zero)
-      where it reads none.
+    - `grounding_reads_gripper`: a grounding with a held-block read-out (a copy of its read-out) where it
+      has none.
     A system missing from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -122,6 +122,8 @@ def apply_ablations(
     new = TriVLA(new_config, normalization=model.normalization, component_configs=components,
                  tokenizers=tokenizers, load_pretrained=False)
     _transfer_weights(model, new)
+    if reads_gripper and not cfg.policy.grounding_reads_gripper:
+        new.policy.grounding.start_held_from_open()
     return new
 
 
@@ -531,8 +533,9 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     trained.requires_grad_(True)
     if config.stage == "policy" and config.grounding_phase != "joint":
         binding = model.policy.binding_parameters()  # bind trains only these; follow all but these
+        trained_in_bind = model.policy.held_parameters() if config.bind_held_only else binding
         for name, p in model.policy.named_parameters():
-            p.requires_grad_((name in binding) == (config.grounding_phase == "bind"))
+            p.requires_grad_(name in trained_in_bind if config.grounding_phase == "bind" else name not in binding)
     if config.stage == "vlm" and model.vision_language.block_head is not None and not config.dense_weight:
         model.vision_language.block_head.requires_grad_(False)  # no dense loss: the head gets no gradient
     model.to(env.device)
@@ -541,8 +544,10 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     prepare_started = time.time()
     dataset, collate, data_summary = _prepare_data(config, model, reader, env)
-    # A resumed run keeps its checkpoint's statistics, and a follow run its bind run's (what the binding learnt on).
-    if config.stage == "policy" and train_state is None and config.grounding_phase != "follow":
+    # A resumed run keeps its checkpoint's statistics, a follow run its bind run's (what the binding learnt on),
+    # and a held-only bind its --init's (everything but the held-block read-out stays as it was).
+    if (config.stage == "policy" and train_state is None and config.grounding_phase != "follow"
+            and not config.bind_held_only):
         from trivla_drake.train.feature_statistics import fit_feature_standardizers
 
         data_summary.update(fit_feature_standardizers(model, dataset.shards, progress=config.progress and env.is_main))
