@@ -631,3 +631,30 @@ if [[ "${CARRY:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_carry/approach_subgoals.py "$RUNS/carry_bind/final" \
       results/stack_carry/approach_bind.json
 fi
+# 33. Optional (PHASE=1; results/stack_phase/): step 32 again with the phase given: the shipped grounding gets a
+#     second read-out that answers while a block is held (--grounding-reads-gripper: fingers 2-6 cm apart), started
+#     as a copy of its read-out, and only that read-out is bound on the carrying frames of stack_block
+#     (--bind-held-only: everything else, the feature statistics included, stays the shipped model's, so the
+#     sub-goal with no block held is the shipped one); where it puts the sub-goal before the grasp and with the
+#     block in hand along the shipped model's stack episodes, and where the bound model carries the block; System 1
+#     following it 2500 steps (step 32's settings), export, six seeds, and where the exported model carries it.
+if [[ "${PHASE:-0}" == 1 ]]; then
+  mkdir -p results/stack_phase
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/held_bind" --init models/trivla_cpu \
+      --grounding-phase bind --keep-grounding --grounding-carry stack_block --grounding-reads-gripper --bind-held-only \
+      --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 \
+      --subgoal-offset
+  "${PYTHON:-python}" results/stack_carry/approach_subgoals.py "$RUNS/held_bind/final" \
+      results/stack_phase/approach_held_bind.json
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_phase/held_bind_grounding.json \
+      --grounding "$RUNS/held_bind/final" > results/stack_phase/held_bind_grounding.md
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/held_bind/final" \
+      results/stack_phase/held_bind.json > results/stack_phase/held_bind.md
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/held_follow" --init "$RUNS/held_bind/final" \
+      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/held_follow/final" --out "$RUNS/held_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/held_export" results/stack_phase/held
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/held_export" \
+      results/stack_phase/held_export.json > results/stack_phase/held_export.md
+fi

@@ -18,7 +18,7 @@ MAX_GRIPPER_WIDTH = 0.08
 FINGER_STATE_INDICES = (7, 8)  # the finger positions' entries of the state
 FEATURE_DIM = 1
 # The closures at which a block is held: fingers 2-6 cm apart. The suite's blocks (4.5 cm) give 0.44; fully
-# open gives 0 and closed on nothing (a push) 1; the drawer's handle and the light's button are thinner.
+# open gives 0, closed on nothing (a push, a button press) 1, and the drawer's 1.2 cm handle bar 0.85.
 HELD_CLOSURE = (0.25, 0.75)
 
 
