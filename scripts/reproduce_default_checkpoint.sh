@@ -602,6 +602,18 @@ if [[ "${DIAGNOSE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
       > results/stack_destinations/shipped.md
 fi
+follow_carrying() {  # follow_carrying NAME DIR: System 1 following RUNS/NAME_bind 2500 steps (step 29's settings, seed 3,
+  #   with stack's carrying frames) -> RUNS/NAME_follow, exported -> RUNS/NAME_export, six seeds -> DIR/NAME_seedS.json,
+  #   and where the export carries the stack block -> DIR/NAME_export.{json,md}
+  local name=$1 dir=$2
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/${name}_follow" --init "$RUNS/${name}_bind/final" \
+      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/${name}_export" "$dir/$name"
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/${name}_export" \
+      "$dir/${name}_export.json" > "$dir/${name}_export.md"
+}
 # 32. Optional (CARRY=1; results/stack_carry/): the shipped model's instruction grounding bound again on MORE_DATA
 #     with the carrying frames of stack_block as well (--grounding-carry stack_block: from the last grasp to the
 #     release, labelled with the release position, so that the grounding reads the destination's colour); where
@@ -620,13 +632,7 @@ if [[ "${CARRY:-0}" == 1 ]]; then
       --grounding "$RUNS/carry_bind/final" > results/stack_carry/bind_grounding.md
   trivla-drake probe --checkpoint "$RUNS/carry_bind/final" --grounding-scenes 20 --threads 1 \
       > results/stack_carry/grounding_check_carry_bind.md
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/carry_follow" --init "$RUNS/carry_bind/final" \
-      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
-      --ema-decay 0.999
-  trivla-drake export "$RUNS/carry_follow/final" --out "$RUNS/carry_export" --drop-unused-llm-layers
-  six_seeds "$RUNS/carry_export" results/stack_carry/carry
-  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/carry_export" \
-      results/stack_carry/carry_export.json > results/stack_carry/carry_export.md
+  follow_carrying carry results/stack_carry
   "${PYTHON:-python}" results/stack_carry/approach_subgoals.py trivla results/stack_carry/approach_shipped.json
   "${PYTHON:-python}" results/stack_carry/approach_subgoals.py "$RUNS/carry_bind/final" \
       results/stack_carry/approach_bind.json
@@ -650,11 +656,5 @@ if [[ "${PHASE:-0}" == 1 ]]; then
       --grounding "$RUNS/held_bind/final" > results/stack_phase/held_bind_grounding.md
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/held_bind/final" \
       results/stack_phase/held_bind.json > results/stack_phase/held_bind.md
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/held_follow" --init "$RUNS/held_bind/final" \
-      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
-      --ema-decay 0.999
-  trivla-drake export "$RUNS/held_follow/final" --out "$RUNS/held_export" --drop-unused-llm-layers
-  six_seeds "$RUNS/held_export" results/stack_phase/held
-  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/held_export" \
-      results/stack_phase/held_export.json > results/stack_phase/held_export.md
+  follow_carrying held results/stack_phase
 fi
