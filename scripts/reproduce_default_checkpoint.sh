@@ -602,12 +602,12 @@ if [[ "${DIAGNOSE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
       > results/stack_destinations/shipped.md
 fi
-follow_carrying() {  # follow_carrying NAME DIR: System 1 following RUNS/NAME_bind 2500 steps (step 29's settings, seed 3,
-  #   with stack's carrying frames) -> RUNS/NAME_follow, exported -> RUNS/NAME_export, six seeds -> DIR/NAME_seedS.json,
-  #   and where the export carries the stack block -> DIR/NAME_export.{json,md}
-  local name=$1 dir=$2
+follow_carrying() {  # follow_carrying NAME DIR [TASKS]: System 1 following RUNS/NAME_bind 2500 steps (step 29's settings,
+  #   seed 3, with the carrying frames of TASKS, default stack_block) -> RUNS/NAME_follow, exported -> RUNS/NAME_export,
+  #   six seeds -> DIR/NAME_seedS.json, and where the export carries the stack block -> DIR/NAME_export.{json,md}
+  local name=$1 dir=$2 tasks=${3:-stack_block}
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/${name}_follow" --init "$RUNS/${name}_bind/final" \
-      --grounding-phase follow --grounding-carry stack_block --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
+      --grounding-phase follow --grounding-carry "$tasks" --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
       --ema-decay 0.999
   trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
   six_seeds "$RUNS/${name}_export" "$dir/$name"
@@ -657,4 +657,16 @@ if [[ "${PHASE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py "$RUNS/held_bind/final" \
       results/stack_phase/held_bind.json > results/stack_phase/held_bind.md
   follow_carrying held results/stack_phase
+fi
+# 34. Optional (PHASE_ALL=1; results/stack_phase/): step 33 with the carrying frames of every task that carries a block to a
+#     release (stack, place in bowl, unstack, rotate left and right), so that the held-block read-out also learns
+#     where those tasks release theirs (step 33's, trained on stack's alone, cost them); followed and evaluated alike.
+if [[ "${PHASE_ALL:-0}" == 1 ]]; then
+  CARRYING=stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right
+  mkdir -p results/stack_phase
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/heldall_bind" --init models/trivla_cpu \
+      --grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --grounding-reads-gripper --bind-held-only \
+      --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 \
+      --subgoal-offset
+  follow_carrying heldall results/stack_phase "$CARRYING"
 fi

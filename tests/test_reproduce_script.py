@@ -35,7 +35,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "DATA": "data/sim",
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
-           "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1",
+           "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -182,16 +182,21 @@ def test_the_carry_experiment_binds_the_shipped_grounding_on_stack_carries_then_
     assert option(bind, "--data") == option(follow, "--data") == option(longer, "--data")
 
 
-def test_the_phase_experiment_binds_only_a_held_block_readout_on_the_shipped_grounding_then_follows(calls):
-    """Step 33: export <- follow <- bind, the bind adding the held-block read-out to the shipped model's grounding
-    and training only it (--bind-held-only) on stack's carrying frames, on the shipped model's data."""
-    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith("held_export"))
+@pytest.mark.parametrize("name, carrying", [
+    ("held", "stack_block"),
+    ("heldall", "stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right"),
+])
+def test_the_phase_experiments_bind_only_a_held_block_readout_on_the_shipped_grounding_then_follow(calls, name, carrying):
+    """Steps 33 and 34: export <- follow <- bind, the bind adding the held-block read-out to the shipped model's
+    grounding and training only it (--bind-held-only) on the carrying frames of stack (of every task that
+    releases a held block), on the shipped model's data."""
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith(f"/{name}_export"))
     follow = run_writing(calls, export[1].removesuffix("/final"))
     bind = run_writing(calls, option(follow, "--init").removesuffix("/final"))
     assert [option(a, "--grounding-phase") for a in (follow, bind)] == ["follow", "bind"]
     assert option(bind, "--init") == "models/trivla_cpu"
     assert {"--keep-grounding", "--grounding-reads-gripper", "--bind-held-only"} <= set(bind)
-    assert option(bind, "--grounding-carry") == option(follow, "--grounding-carry") == "stack_block"
+    assert option(bind, "--grounding-carry") == option(follow, "--grounding-carry") == carrying
     shipped = run_writing(calls, "models/trivla_cpu")
     longer = run_writing(calls, shipped[1].removesuffix("/final"))
     assert option(bind, "--data") == option(follow, "--data") == option(longer, "--data")
