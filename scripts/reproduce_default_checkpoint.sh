@@ -660,7 +660,8 @@ if [[ "${PHASE:-0}" == 1 ]]; then
 fi
 # 34. Optional (PHASE_ALL=1; results/stack_phase/): step 33 with the carrying frames of every task that carries a block to a
 #     release (stack, place in bowl, unstack, rotate left and right), so that the held-block read-out also learns
-#     where those tasks release theirs (step 33's, trained on stack's alone, cost them); followed and evaluated alike.
+#     where those tasks release theirs (step 33's, trained on stack's alone, cost them); where it puts the sub-goal
+#     with the block in hand along the shipped model's stack episodes; followed and evaluated alike.
 if [[ "${PHASE_ALL:-0}" == 1 ]]; then
   CARRYING=stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right
   mkdir -p results/stack_phase
@@ -668,5 +669,7 @@ if [[ "${PHASE_ALL:-0}" == 1 ]]; then
       --grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --grounding-reads-gripper --bind-held-only \
       --lr 1e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 \
       --subgoal-offset
+  "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_phase/heldall_bind_grounding.json \
+      --grounding "$RUNS/heldall_bind/final" > results/stack_phase/heldall_bind_grounding.md
   follow_carrying heldall results/stack_phase "$CARRYING"
 fi
