@@ -602,11 +602,12 @@ if [[ "${DIAGNOSE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
       > results/stack_destinations/shipped.md
 fi
-follow_carrying() {  # follow_carrying NAME DIR [TASKS]: System 1 following RUNS/NAME_bind 2500 steps (step 29's settings,
-  #   seed 3, with the carrying frames of TASKS, default stack_block) -> RUNS/NAME_follow, exported -> RUNS/NAME_export,
-  #   six seeds -> DIR/NAME_seedS.json, and where the export carries the stack block -> DIR/NAME_export.{json,md}
-  local name=$1 dir=$2 tasks=${3:-stack_block}
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/${name}_follow" --init "$RUNS/${name}_bind/final" \
+follow_carrying() {  # follow_carrying NAME DIR [TASKS [INIT]]: System 1 following INIT (default RUNS/NAME_bind) 2500
+  #   steps (step 29's settings, seed 3, with the carrying frames of TASKS, default stack_block) -> RUNS/NAME_follow,
+  #   exported -> RUNS/NAME_export, six seeds -> DIR/NAME_seedS.json, and where the export carries the stack block
+  #   -> DIR/NAME_export.{json,md}
+  local name=$1 dir=$2 tasks=${3:-stack_block} init=${4:-$RUNS/$1_bind/final}
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/${name}_follow" --init "$init" \
       --grounding-phase follow --grounding-carry "$tasks" --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
       --ema-decay 0.999
   trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
@@ -662,8 +663,8 @@ fi
 #     release (stack, place in bowl, unstack, rotate left and right), so that the held-block read-out also learns
 #     where those tasks release theirs (step 33's, trained on stack's alone, cost them); where it puts the sub-goal
 #     with the block in hand along the shipped model's stack episodes; followed and evaluated alike.
+CARRYING=stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right
 if [[ "${PHASE_ALL:-0}" == 1 ]]; then
-  CARRYING=stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right
   mkdir -p results/stack_phase
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/heldall_bind" --init models/trivla_cpu \
       --grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --grounding-reads-gripper --bind-held-only \
@@ -672,4 +673,12 @@ if [[ "${PHASE_ALL:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_phase/heldall_bind_grounding.json \
       --grounding "$RUNS/heldall_bind/final" > results/stack_phase/heldall_bind_grounding.md
   follow_carrying heldall results/stack_phase "$CARRYING"
+fi
+# 35. Optional (CONTROL=1; results/follow_control/): the control for steps 32-34: the shipped model followed as step
+#     34's model was (same data, carrying frames, learning rate, steps and seed), with nothing bound before, so
+#     its grounding stays the shipped one; export, six seeds, and where the export carries the stack block. It
+#     measures what a 2500-step follow does by itself.
+if [[ "${CONTROL:-0}" == 1 ]]; then
+  mkdir -p results/follow_control
+  follow_carrying control results/follow_control "$CARRYING" models/trivla_cpu
 fi

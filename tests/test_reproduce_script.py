@@ -36,6 +36,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
+           "CONTROL": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -200,3 +201,19 @@ def test_the_phase_experiments_bind_only_a_held_block_readout_on_the_shipped_gro
     shipped = run_writing(calls, "models/trivla_cpu")
     longer = run_writing(calls, shipped[1].removesuffix("/final"))
     assert option(bind, "--data") == option(follow, "--data") == option(longer, "--data")
+
+
+def test_the_follow_control_follows_the_shipped_model_as_step_34_followed_its_bind(calls):
+    """Step 35: the control follows models/trivla_cpu with step 34's follow command but for --init, so the two
+    differ only in the bind before."""
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith("/control_export"))
+    control = run_writing(calls, export[1].removesuffix("/final"))
+    heldall = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith("/heldall_follow"))
+    assert option(control, "--init") == "models/trivla_cpu"
+    assert option(control, "--grounding-phase") == "follow"
+
+    def without(argv: list[str], *names: str) -> list[str]:
+        drop = {i + k for i, a in enumerate(argv) if a in names for k in (0, 1)}
+        return [a for i, a in enumerate(argv) if i not in drop]
+
+    assert without(control, "--init", "--out") == without(heldall, "--init", "--out")
