@@ -1,0 +1,76 @@
+"""Compare models evaluated on the same seeds (`evaluate --episodes 2 --seed S --json`, one file per seed).
+
+    python results/follow_control/compare_seeds.py OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
+
+reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model, prints a markdown table (successes per
+task, the total, the mean over seeds with its standard error, and each model's per-seed difference to the
+first model, paired by seed since each seed's scenes are the same for every model) and draws the per-task
+successes as grouped bars into OUT.png.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+SEEDS = tuple(range(1000, 1006))
+
+
+def load(prefix: str) -> tuple[dict[str, int], np.ndarray]:
+    """Successes per task over the seeds, and each seed's average success."""
+    per_task: dict[str, int] = {}
+    averages = []
+    for seed in SEEDS:
+        path = Path(f"{prefix}_seed{seed}.json")
+        if not path.is_file():
+            raise SystemExit(f"{path}: no such evaluation (expected one file per seed {SEEDS[0]}-{SEEDS[-1]})")
+        result = json.loads(path.read_text())
+        averages.append(result["average_success"])
+        for task, row in result["tasks"].items():
+            per_task[task] = per_task.get(task, 0) + row["successes"]
+    return per_task, np.array(averages)
+
+
+def stderr(values: np.ndarray) -> float:
+    return float(values.std(ddof=1) / np.sqrt(len(values)))
+
+
+def main(argv: list[str]) -> None:
+    if len(argv) < 2 or any("=" not in arg for arg in argv[1:]):
+        raise SystemExit(__doc__)
+    out, models = Path(argv[0]), [arg.split("=", 1) for arg in argv[1:]]
+    loaded = {label: load(prefix) for label, prefix in models}
+    tasks = list(next(iter(loaded.values()))[0])
+    first = next(iter(loaded.values()))[1]
+    print("| model | " + " | ".join(tasks) + " | all | mean ± stderr | paired difference to the first |")
+    print("| --- " * (len(tasks) + 4) + "|")
+    for i, (label, (per_task, averages)) in enumerate(loaded.items()):
+        difference = averages - first
+        paired = "-" if i == 0 else f"{difference.mean():+.3f} ± {stderr(difference):.3f}"
+        print(f"| {label} | " + " | ".join(str(per_task[t]) for t in tasks) +
+              f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} |")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(11, 4))
+    x = np.arange(len(tasks))
+    width = 0.8 / len(loaded)
+    episodes = 2 * len(SEEDS)
+    for i, (label, (per_task, averages)) in enumerate(loaded.items()):
+        ax.bar(x + (i - (len(loaded) - 1) / 2) * width, [per_task[t] for t in tasks], width,
+               label=f"{label}: {sum(per_task.values())}/{episodes * len(tasks)}")
+    ax.set_xticks(x, [t.replace("_", " ") for t in tasks], rotation=40, ha="right")
+    ax.set_ylim(0, episodes + 0.5)
+    ax.set_ylabel(f"successes of {episodes} (seeds {SEEDS[0]}-{SEEDS[-1]})")
+    ax.legend(fontsize=8, ncol=min(4, len(loaded)), loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    print(f"\nplot: {out}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

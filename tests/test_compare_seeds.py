@@ -1,0 +1,50 @@
+"""results/follow_control/compare_seeds.py: models evaluated on the same six seeds, side by side."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "results" / "follow_control" / "compare_seeds.py"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("compare_seeds", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]]) -> None:
+    for seed, successes in zip(range(1000, 1006), successes_per_seed):
+        tasks = {task: {"success_rate": count / 2, "episodes": 2, "successes": count} for task, count in successes.items()}
+        average = sum(row["success_rate"] for row in tasks.values()) / len(tasks)
+        Path(f"{prefix}_seed{seed}.json").write_text(json.dumps({"average_success": average, "tasks": tasks}))
+
+
+def test_totals_means_and_paired_differences(tmp_path, capsys):
+    _write_model(tmp_path / "a", [{"lift_block": 1, "open_drawer": 2}] * 6)
+    _write_model(tmp_path / "b", [{"lift_block": 2, "open_drawer": 2}] * 3 + [{"lift_block": 0, "open_drawer": 2}] * 3)
+    out = tmp_path / "compare.png"
+    _script().main([str(out), f"first={tmp_path / 'a'}", f"second={tmp_path / 'b'}"])
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in capsys.readouterr().out.splitlines()
+            if line.startswith("| first") or line.startswith("| second")}
+    assert rows["first"][1:4] == ["6", "12", "18"] and rows["first"][4] == "0.750 ± 0.000" and rows["first"][5] == "- |"
+    # second: lift 2,2,2,0,0,0 -> 6 of 12; seed means 1.0 x3 and 0.5 x3 against 0.75: differences +-0.25
+    assert rows["second"][1:4] == ["6", "12", "18"] and rows["second"][4] == "0.750 ± 0.112"
+    assert rows["second"][5] == "+0.000 ± 0.112 |"
+    assert out.stat().st_size > 0
+
+
+def test_a_missing_seed_names_the_file(tmp_path):
+    _write_model(tmp_path / "a", [{"lift_block": 1}] * 5)  # seed 1005 missing
+    with pytest.raises(SystemExit, match="a_seed1005.json: no such evaluation"):
+        _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+
+
+def test_arguments_without_a_label_print_the_usage(tmp_path):
+    with pytest.raises(SystemExit, match="LABEL=PREFIX"):
+        _script().main([str(tmp_path / "x.png"), str(tmp_path / "a")])
