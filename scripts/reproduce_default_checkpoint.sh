@@ -602,13 +602,13 @@ if [[ "${DIAGNOSE:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/stack_destinations/stack_destinations.py trivla results/stack_destinations/shipped.json \
       > results/stack_destinations/shipped.md
 fi
-follow_carrying() {  # follow_carrying NAME DIR [TASKS [INIT]]: System 1 following INIT (default RUNS/NAME_bind) 2500
-  #   steps (step 29's settings, seed 3, with the carrying frames of TASKS, default stack_block) -> RUNS/NAME_follow,
-  #   exported -> RUNS/NAME_export, six seeds -> DIR/NAME_seedS.json, and where the export carries the stack block
-  #   -> DIR/NAME_export.{json,md}
-  local name=$1 dir=$2 tasks=${3:-stack_block} init=${4:-$RUNS/$1_bind/final}
+follow_carrying() {  # follow_carrying NAME DIR [TASKS [INIT [SEED]]]: System 1 following INIT (default RUNS/NAME_bind)
+  #   2500 steps (step 29's settings, seed SEED (default 3), with the carrying frames of TASKS, default stack_block)
+  #   -> RUNS/NAME_follow, exported -> RUNS/NAME_export, six seeds -> DIR/NAME_seedS.json, and where the export
+  #   carries the stack block -> DIR/NAME_export.{json,md}
+  local name=$1 dir=$2 tasks=${3:-stack_block} init=${4:-$RUNS/$1_bind/final} seed=${5:-3}
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/${name}_follow" --init "$init" \
-      --grounding-phase follow --grounding-carry "$tasks" --lr 3e-4 --steps 2500 --seed 3 --subgoal-offset \
+      --grounding-phase follow --grounding-carry "$tasks" --lr 3e-4 --steps 2500 --seed "$seed" --subgoal-offset \
       --ema-decay 0.999
   trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
   six_seeds "$RUNS/${name}_export" "$dir/$name"
@@ -681,4 +681,11 @@ fi
 if [[ "${CONTROL:-0}" == 1 ]]; then
   mkdir -p results/follow_control
   follow_carrying control results/follow_control "$CARRYING" models/trivla_cpu
+fi
+# 36. Optional (PHASE_LONGER=1, after step 34; results/follow_control/): step 34's model followed 2500 steps more
+#     (seed 4), as the shipped model's lineage gained from a longer follow (results/subcell_follow/); export, six
+#     seeds, and where it carries the stack block.
+if [[ "${PHASE_LONGER:-0}" == 1 ]]; then
+  mkdir -p results/follow_control
+  follow_carrying heldall2 results/follow_control "$CARRYING" "$RUNS/heldall_follow/final" 4
 fi

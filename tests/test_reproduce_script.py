@@ -36,7 +36,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
-           "CONTROL": "1",
+           "CONTROL": "1", "PHASE_LONGER": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -211,9 +211,20 @@ def test_the_follow_control_follows_the_shipped_model_as_step_34_followed_its_bi
     heldall = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith("/heldall_follow"))
     assert option(control, "--init") == "models/trivla_cpu"
     assert option(control, "--grounding-phase") == "follow"
+    assert _without(control, "--init", "--out") == _without(heldall, "--init", "--out")
 
-    def without(argv: list[str], *names: str) -> list[str]:
-        drop = {i + k for i, a in enumerate(argv) if a in names for k in (0, 1)}
-        return [a for i, a in enumerate(argv) if i not in drop]
 
-    assert without(control, "--init", "--out") == without(heldall, "--init", "--out")
+def _without(argv: list[str], *names: str) -> list[str]:
+    """One recorded call without the options `names` and their values."""
+    drop = {i + k for i, a in enumerate(argv) if a in names for k in (0, 1)}
+    return [a for i, a in enumerate(argv) if i not in drop]
+
+
+def test_the_longer_phase_follow_goes_on_from_step_34s_follow_with_another_seed(calls):
+    """Step 36: step 34's followed model followed 2500 steps more, with the same command but --init and --seed."""
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith("/heldall2_export"))
+    longer = run_writing(calls, export[1].removesuffix("/final"))
+    heldall = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith("/heldall_follow"))
+    assert option(longer, "--init") == option(heldall, "--out") + "/final"
+    assert option(longer, "--seed") != option(heldall, "--seed")
+    assert _without(longer, "--init", "--out", "--seed") == _without(heldall, "--init", "--out", "--seed")
