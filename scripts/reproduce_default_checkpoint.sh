@@ -35,6 +35,13 @@ six_seeds() {  # six_seeds POLICY PREFIX [flags...]: `evaluate --episodes 2` on 
         > "${prefix}_seed$seed.json"
   done
 }
+forty_chains() {  # forty_chains POLICY PREFIX: 20 five-task chains on each of seeds 1003 and 1004 -> PREFIX_chains20_seedS.json
+  local policy=$1 prefix=$2
+  for seed in 1003 1004; do
+    trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
+        > "${prefix}_chains20_seed$seed.json"
+  done
+}
 arm() {  # arm NAME INIT SEED [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME with SEED.
   local name=$1 init=$2 seed=$3
   shift 3
@@ -344,10 +351,7 @@ for model in "$PRELUDE" "$CURRICULUM"; do
     trivla-drake evaluate --policy "$model" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
         --json > "results/chain_preludes/${name}_prelude1_seed$seed.json"
   done
-  for seed in 1003 1004; do
-    trivla-drake evaluate --policy "$model" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
-        > "results/chain_preludes/${name}_chains20_seed$seed.json"
-  done
+  forty_chains "$model" "results/chain_preludes/$name"
   trivla-drake evaluate --policy "$model" --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
       > "results/chain_preludes/${name}_prelude2_seed1000.json"
 done
@@ -379,10 +383,7 @@ for model in "$MORE_EMA" "$RUNS/more_trained_export"; do
         > "results/more_preludes_ema/${name}_seed$seed.json"
   done
 done
-for seed in 1003 1004; do
-  trivla-drake evaluate --policy "$MORE_EMA" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
-      --json > "results/more_preludes_ema/ema_chains20_seed$seed.json"
-done
+forty_chains "$MORE_EMA" results/more_preludes_ema/ema
 for seed in 1003 1004 1005; do
   trivla-drake evaluate --policy "$MORE_EMA" --episodes 2 --seed "$seed" --workers 2 --no-progress --json \
       > "results/more_preludes_ema/ema_seed$seed.json"
@@ -425,10 +426,7 @@ if [[ "${EMPHASIS:-0}" == 1 ]]; then
     six_seeds "$RUNS/${name}_export" "results/grasp_emphasis/${name}"
     trivla-drake probe --checkpoint "$RUNS/${name}_export" --grasp-episodes 6 > "results/grasp_emphasis/grasps_$name.md"
   done
-  for seed in 1003 1004; do
-    trivla-drake evaluate --policy "$RUNS/ema3_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
-        --json > "results/grasp_emphasis/ema3_chains20_seed$seed.json"
-  done
+  forty_chains "$RUNS/ema3_export" results/grasp_emphasis/ema3
 fi
 # 25. Optional (TAKEOVER=1; results/policy_takeover/): DAgger-style data. The shipped model drives first
 #     (collect --takeover: 30-150 steps, or until it commands the hand closed), then the oracle takes over
@@ -538,10 +536,7 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follo
     --grounding-phase follow --lr 3e-4 --steps 5000 --seed 2 --subgoal-offset --ema-decay 0.999
 trivla-drake export "$RUNS/sub4_follow2/final" --out models/trivla_cpu --drop-unused-llm-layers
 six_seeds models/trivla_cpu "results/subcell_follow/follow2"
-for seed in 1003 1004; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
-      --json > "results/subcell_follow/follow2_chains20_seed$seed.json"
-done
+forty_chains models/trivla_cpu results/subcell_follow/follow2
 for seed in 1000 1001 1002; do
   trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
       --json > "results/subcell_follow/follow2_prelude1_seed$seed.json"
@@ -684,8 +679,15 @@ if [[ "${CONTROL:-0}" == 1 ]]; then
 fi
 # 36. Optional (PHASE_LONGER=1, after step 34; results/follow_control/): step 34's model followed 2500 steps more
 #     (seed 4), as the shipped model's lineage gained from a longer follow (results/subcell_follow/); export, six
-#     seeds, and where it carries the stack block.
+#     seeds, where it carries the stack block, and the 40 chains of step 29.
 if [[ "${PHASE_LONGER:-0}" == 1 ]]; then
   mkdir -p results/follow_control
   follow_carrying heldall2 results/follow_control "$CARRYING" "$RUNS/heldall_follow/final" 4
+  forty_chains "$RUNS/heldall2_export" results/follow_control/heldall2
+fi
+# 37. Optional (CONTROL_LONGER=1, after step 35; results/follow_control/): the control of step 36: step 35's model
+#     followed 2500 steps more with step 36's command; export, six seeds, and where it carries the stack block.
+if [[ "${CONTROL_LONGER:-0}" == 1 ]]; then
+  mkdir -p results/follow_control
+  follow_carrying control2 results/follow_control "$CARRYING" "$RUNS/control_follow/final" 4
 fi

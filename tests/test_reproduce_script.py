@@ -36,7 +36,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
-           "CONTROL": "1", "PHASE_LONGER": "1",
+           "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -220,11 +220,13 @@ def _without(argv: list[str], *names: str) -> list[str]:
     return [a for i, a in enumerate(argv) if i not in drop]
 
 
-def test_the_longer_phase_follow_goes_on_from_step_34s_follow_with_another_seed(calls):
-    """Step 36: step 34's followed model followed 2500 steps more, with the same command but --init and --seed."""
-    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith("/heldall2_export"))
+@pytest.mark.parametrize("name", ["heldall", "control"])
+def test_the_longer_follows_go_on_from_their_follow_with_another_seed(calls, name):
+    """Steps 36 and 37: step 34's followed model and step 35's control followed 2500 steps more, each with its
+    own follow command but --init and --seed, and the same command for both."""
+    export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith(f"/{name}2_export"))
     longer = run_writing(calls, export[1].removesuffix("/final"))
-    heldall = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith("/heldall_follow"))
-    assert option(longer, "--init") == option(heldall, "--out") + "/final"
-    assert option(longer, "--seed") != option(heldall, "--seed")
-    assert _without(longer, "--init", "--out", "--seed") == _without(heldall, "--init", "--out", "--seed")
+    first = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith(f"/{name}_follow"))
+    assert option(longer, "--init") == option(first, "--out") + "/final"
+    assert option(longer, "--seed") == "4" != option(first, "--seed")
+    assert _without(longer, "--init", "--out", "--seed") == _without(first, "--init", "--out", "--seed")
