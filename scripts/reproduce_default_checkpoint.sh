@@ -686,8 +686,10 @@ if [[ "${PHASE_LONGER:-0}" == 1 ]]; then
   forty_chains "$RUNS/heldall2_export" results/follow_control/heldall2
 fi
 # 37. Optional (CONTROL_LONGER=1, after step 35; results/follow_control/): the control of step 36: step 35's model
-#     followed 2500 steps more with step 36's command; export, six seeds, and where it carries the stack block.
+#     followed 2500 steps more with step 36's command; export, six seeds, where it carries the stack block, and the
+#     40 chains.
 if [[ "${CONTROL_LONGER:-0}" == 1 ]]; then
   mkdir -p results/follow_control
   follow_carrying control2 results/follow_control "$CARRYING" "$RUNS/control_follow/final" 4
+  forty_chains "$RUNS/control2_export" results/follow_control/control2
 fi

@@ -223,10 +223,13 @@ def _without(argv: list[str], *names: str) -> list[str]:
 @pytest.mark.parametrize("name", ["heldall", "control"])
 def test_the_longer_follows_go_on_from_their_follow_with_another_seed(calls, name):
     """Steps 36 and 37: step 34's followed model and step 35's control followed 2500 steps more, each with its
-    own follow command but --init and --seed, and the same command for both."""
+    own follow command but --init and --seed, and the same command for both; each export runs the 40 chains."""
     export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith(f"/{name}2_export"))
     longer = run_writing(calls, export[1].removesuffix("/final"))
     first = next(argv for argv in calls if argv[0] == "train" and option(argv, "--out", "").endswith(f"/{name}_follow"))
     assert option(longer, "--init") == option(first, "--out") + "/final"
     assert option(longer, "--seed") == "4" != option(first, "--seed")
     assert _without(longer, "--init", "--out", "--seed") == _without(first, "--init", "--out", "--seed")
+    chains = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == option(export, "--out")
+              and option(argv, "--chains") == "20"]
+    assert sorted(option(argv, "--seed") for argv in chains) == ["1003", "1004"]
