@@ -671,11 +671,12 @@ if [[ "${PHASE_ALL:-0}" == 1 ]]; then
 fi
 # 35. Optional (CONTROL=1; results/follow_control/): the control for steps 32-34: the shipped model followed as step
 #     34's model was (same data, carrying frames, learning rate, steps and seed), with nothing bound before, so
-#     its grounding stays the shipped one; export, six seeds, and where the export carries the stack block. It
-#     measures what a 2500-step follow does by itself.
+#     its grounding stays the shipped one; export, six seeds, where the export carries the stack block, and the 40
+#     chains. It measures what a 2500-step follow does by itself.
 if [[ "${CONTROL:-0}" == 1 ]]; then
   mkdir -p results/follow_control
   follow_carrying control results/follow_control "$CARRYING" models/trivla_cpu
+  forty_chains "$RUNS/control_export" results/follow_control/control
 fi
 # 36. Optional (PHASE_LONGER=1, after step 34; results/follow_control/): step 34's model followed 2500 steps more
 #     (seed 4), as the shipped model's lineage gained from a longer follow (results/subcell_follow/); export, six

@@ -212,6 +212,13 @@ def test_the_follow_control_follows_the_shipped_model_as_step_34_followed_its_bi
     assert option(control, "--init") == "models/trivla_cpu"
     assert option(control, "--grounding-phase") == "follow"
     assert _without(control, "--init", "--out") == _without(heldall, "--init", "--out")
+    assert _forty_chain_seeds(calls, option(export, "--out")) == ["1003", "1004"]
+
+
+def _forty_chain_seeds(calls: list[list[str]], policy: str) -> list[str]:
+    """The seeds of the 20-chain evaluations of `policy`."""
+    return sorted(option(argv, "--seed") for argv in calls
+                  if argv[0] == "evaluate" and option(argv, "--policy") == policy and option(argv, "--chains") == "20")
 
 
 def _without(argv: list[str], *names: str) -> list[str]:
@@ -230,6 +237,4 @@ def test_the_longer_follows_go_on_from_their_follow_with_another_seed(calls, nam
     assert option(longer, "--init") == option(first, "--out") + "/final"
     assert option(longer, "--seed") == "4" != option(first, "--seed")
     assert _without(longer, "--init", "--out", "--seed") == _without(first, "--init", "--out", "--seed")
-    chains = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == option(export, "--out")
-              and option(argv, "--chains") == "20"]
-    assert sorted(option(argv, "--seed") for argv in chains) == ["1003", "1004"]
+    assert _forty_chain_seeds(calls, option(export, "--out")) == ["1003", "1004"]
