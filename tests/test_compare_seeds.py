@@ -48,3 +48,25 @@ def test_a_missing_seed_names_the_file(tmp_path):
 def test_arguments_without_a_label_print_the_usage(tmp_path):
     with pytest.raises(SystemExit, match="LABEL=PREFIX"):
         _script().main([str(tmp_path / "x.png"), str(tmp_path / "a")])
+
+
+def _write_chains(prefix: Path, stopped: dict[int, dict[int, int]]) -> None:
+    """Two chains per evaluation seed (chain seeds 1 and 2), five tasks each; `stopped[seed][chain]` = tasks done."""
+    for seed in (1003, 1004):
+        failures = [{"seed": chain, "completed": done} for chain, done in stopped.get(seed, {}).items()]
+        Path(f"{prefix}_chains20_seed{seed}.json").write_text(json.dumps(
+            {"chains": {"count": 2, "completed_at_least": [0.0] * 5, "failures": failures}}))
+
+
+def test_chains_are_paired_chain_by_chain_even_when_every_model_completes_one(tmp_path, capsys):
+    for name in ("a", "b"):
+        _write_model(tmp_path / name, [{"lift_block": 1}] * 6)
+    # chain (1004, 2) is completed by both models, so it is in neither file's failures
+    _write_chains(tmp_path / "a", {1003: {1: 0, 2: 1}, 1004: {1: 2}})
+    _write_chains(tmp_path / "b", {1003: {1: 1, 2: 3}, 1004: {1: 2}})
+    _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in capsys.readouterr().out.splitlines()
+            if line.startswith("| a |") or line.startswith("| b |")}
+    # lengths a: 0 1 2 5 (mean 2), b: 1 3 2 5 (mean 2.75); differences 1 2 0 0
+    assert rows["a"][-2] == "2.000 ± 1.080" and rows["b"][-2] == "2.750 ± 0.854"
+    assert rows["b"][-1] == "+0.750 ± 0.479 |"

@@ -5,7 +5,9 @@
 reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model, prints a markdown table (successes per
 task, the total, the mean over seeds with its standard error, and each model's per-seed difference to the
 first model, paired by seed since each seed's scenes are the same for every model) and draws the per-task
-successes as grouped bars into OUT.png.
+successes as grouped bars into OUT.png. Models that also have PREFIX_chains20_seed1003.json and ..._seed1004.json
+(`evaluate --episodes 0 --chains 20`) get a second table: Avg. Len over those 40 chains, and each model's difference
+to the first such model paired chain by chain (the chains of a seed are the same for every model).
 """
 
 import json
@@ -32,8 +34,39 @@ def load(prefix: str) -> tuple[dict[str, int], np.ndarray]:
     return per_task, np.array(averages)
 
 
+CHAIN_SEEDS = (1003, 1004)
+
+
 def stderr(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / np.sqrt(len(values)))
+
+
+def load_chains(prefix: str) -> tuple[dict[tuple[int, int], int], int, int] | None:
+    """Tasks completed by each chain that stopped early, keyed by (evaluation seed, chain seed); the number of
+    chains; and a chain's length. None where the chain files are missing."""
+    stopped: dict[tuple[int, int], int] = {}
+    count = 0
+    for seed in CHAIN_SEEDS:
+        path = Path(f"{prefix}_chains20_seed{seed}.json")
+        if not path.is_file():
+            return None
+        chains = json.loads(path.read_text())["chains"]
+        count += chains["count"]
+        length = len(chains["completed_at_least"])
+        stopped.update({(seed, failure["seed"]): failure["completed"] for failure in chains["failures"]})
+    return stopped, count, length
+
+
+def chain_lengths(models: dict[str, tuple[dict, int, int]]) -> dict[str, np.ndarray]:
+    """Each model's tasks completed per chain, in one chain order for all: a chain no model stopped early
+    completed all tasks in every model, so it adds the full length to each (and nothing to the differences)."""
+    keys = sorted(set().union(*(stopped for stopped, _, _ in models.values())))
+    shapes = {(count, length) for _, count, length in models.values()}
+    if len(shapes) != 1:
+        raise SystemExit(f"the chain evaluations differ in their number of chains or tasks per chain: {sorted(shapes)}")
+    (count, length), = shapes
+    return {label: np.array([stopped.get(key, length) for key in keys] + [length] * (count - len(keys)), dtype=float)
+            for label, (stopped, _, _) in models.items()}
 
 
 def main(argv: list[str]) -> None:
@@ -50,6 +83,16 @@ def main(argv: list[str]) -> None:
         paired = "-" if i == 0 else f"{difference.mean():+.3f} ± {stderr(difference):.3f}"
         print(f"| {label} | " + " | ".join(str(per_task[t]) for t in tasks) +
               f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} |")
+
+    chains = {label: loaded_chains for label, prefix in models if (loaded_chains := load_chains(prefix)) is not None}
+    if chains:
+        lengths = chain_lengths(chains)
+        reference = next(iter(lengths.values()))
+        print(f"\n| model | Avg. Len, {len(reference)} chains (seeds {', '.join(map(str, CHAIN_SEEDS))}) | "
+              "paired by chain to the first |\n| --- | --- | --- |")
+        for i, (label, values) in enumerate(lengths.items()):
+            paired = "-" if i == 0 else f"{(values - reference).mean():+.3f} ± {stderr(values - reference):.3f}"
+            print(f"| {label} | {values.mean():.3f} ± {stderr(values):.3f} | {paired} |")
 
     import matplotlib
 
