@@ -669,28 +669,41 @@ if [[ "${PHASE_ALL:-0}" == 1 ]]; then
       --grounding "$RUNS/heldall_bind/final" > results/stack_phase/heldall_bind_grounding.md
   follow_carrying heldall results/stack_phase "$CARRYING"
 fi
+follow_with_chains() {  # follow_with_chains NAME DIR INIT [SEED]: follow_carrying with every carrying task from INIT,
+  #   then the 40 chains -> DIR/NAME_chains20_seedS.json
+  mkdir -p "$2"
+  follow_carrying "$1" "$2" "$CARRYING" "$3" "${4:-3}"
+  forty_chains "$RUNS/$1_export" "$2/$1"
+}
 # 35. Optional (CONTROL=1; results/follow_control/): the control for steps 32-34: the shipped model followed as step
 #     34's model was (same data, carrying frames, learning rate, steps and seed), with nothing bound before, so
 #     its grounding stays the shipped one; export, six seeds, where the export carries the stack block, and the 40
 #     chains. It measures what a 2500-step follow does by itself.
 if [[ "${CONTROL:-0}" == 1 ]]; then
-  mkdir -p results/follow_control
-  follow_carrying control results/follow_control "$CARRYING" models/trivla_cpu
-  forty_chains "$RUNS/control_export" results/follow_control/control
+  follow_with_chains control results/follow_control models/trivla_cpu
 fi
 # 36. Optional (PHASE_LONGER=1, after step 34; results/follow_control/): step 34's model followed 2500 steps more
 #     (seed 4), as the shipped model's lineage gained from a longer follow (results/subcell_follow/); export, six
 #     seeds, where it carries the stack block, and the 40 chains of step 29.
 if [[ "${PHASE_LONGER:-0}" == 1 ]]; then
-  mkdir -p results/follow_control
-  follow_carrying heldall2 results/follow_control "$CARRYING" "$RUNS/heldall_follow/final" 4
-  forty_chains "$RUNS/heldall2_export" results/follow_control/heldall2
+  follow_with_chains heldall2 results/follow_control "$RUNS/heldall_follow/final" 4
 fi
 # 37. Optional (CONTROL_LONGER=1, after step 35; results/follow_control/): the control of step 36: step 35's model
 #     followed 2500 steps more with step 36's command; export, six seeds, where it carries the stack block, and the
 #     40 chains.
 if [[ "${CONTROL_LONGER:-0}" == 1 ]]; then
-  mkdir -p results/follow_control
-  follow_carrying control2 results/follow_control "$CARRYING" "$RUNS/control_follow/final" 4
-  forty_chains "$RUNS/control2_export" results/follow_control/control2
+  follow_with_chains control2 results/follow_control "$RUNS/control_follow/final" 4
+fi
+# 38. Optional (PHASE_RESEED=1, after step 34; results/follow_seeds/): step 36 again with seed 5 in place of seed 4,
+#     from the same start (step 34's followed model): two follows that differ only in their seed measure how far
+#     apart one follow run's result can land by chance; export, six seeds, where it carries the stack block, and the
+#     40 chains.
+if [[ "${PHASE_RESEED:-0}" == 1 ]]; then
+  follow_with_chains heldall2b results/follow_seeds "$RUNS/heldall_follow/final" 5
+fi
+# 39. Optional (PHASE_THIRD=1, after step 36; results/follow_seeds/): step 36's model followed 2500 steps more
+#     (seed 5), a third follow leg of the held-block read-out's lineage; export, six seeds, where it carries the
+#     stack block, and the 40 chains.
+if [[ "${PHASE_THIRD:-0}" == 1 ]]; then
+  follow_with_chains heldall3 results/follow_seeds "$RUNS/heldall2_follow/final" 5
 fi

@@ -36,7 +36,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STEPS": "1", "CLEAN": "1", "NOISE": "1", "GROUNDING": "1",
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
-           "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1",
+           "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -238,3 +238,18 @@ def test_the_longer_follows_go_on_from_their_follow_with_another_seed(calls, nam
     assert option(longer, "--seed") == "4" != option(first, "--seed")
     assert _without(longer, "--init", "--out", "--seed") == _without(first, "--init", "--out", "--seed")
     assert _forty_chain_seeds(calls, option(export, "--out")) == ["1003", "1004"]
+
+
+def test_the_reseeded_follow_is_step_36_with_another_seed_and_the_third_leg_goes_on_from_step_36(calls):
+    """Step 38 repeats step 36's follow from the same start with seed 5, and nothing else changed; step 39 follows
+    step 36's model with that same command. Both exports run the 40 chains."""
+    def follow_of(name):
+        export = next(argv for argv in calls if argv[0] == "export" and option(argv, "--out", "").endswith(f"/{name}_export"))
+        assert _forty_chain_seeds(calls, option(export, "--out")) == ["1003", "1004"]
+        return run_writing(calls, export[1].removesuffix("/final"))
+    second, reseeded, third = follow_of("heldall2"), follow_of("heldall2b"), follow_of("heldall3")
+    assert option(reseeded, "--init") == option(second, "--init")
+    assert option(reseeded, "--seed") == "5" != option(second, "--seed")
+    assert option(third, "--init") == option(second, "--out") + "/final"
+    assert _without(reseeded, "--out", "--seed") == _without(second, "--out", "--seed")
+    assert _without(third, "--init", "--out") == _without(reseeded, "--init", "--out")
