@@ -18,9 +18,14 @@ def _script():
     return module
 
 
-def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]]) -> None:
+def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]], failed_first: bool = False) -> None:
+    """Two episodes per task and seed (episode seeds 0 and 1): with `count` successes the last 2 - count fail, or
+    the first ones where `failed_first`."""
     for seed, successes in zip(range(1000, 1006), successes_per_seed):
-        tasks = {task: {"success_rate": count / 2, "episodes": 2, "successes": count} for task, count in successes.items()}
+        def failures(count):
+            return [{"seed": k} for k in (range(2 - count) if failed_first else range(count, 2))]
+        tasks = {task: {"success_rate": count / 2, "episodes": 2, "successes": count, "failures": failures(count)}
+                 for task, count in successes.items()}
         average = sum(row["success_rate"] for row in tasks.values()) / len(tasks)
         Path(f"{prefix}_seed{seed}.json").write_text(json.dumps({"average_success": average, "tasks": tasks}))
 
@@ -32,11 +37,23 @@ def test_totals_means_and_paired_differences(tmp_path, capsys):
     _script().main([str(out), f"first={tmp_path / 'a'}", f"second={tmp_path / 'b'}"])
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in capsys.readouterr().out.splitlines()
             if line.startswith("| first") or line.startswith("| second")}
-    assert rows["first"][1:4] == ["6", "12", "18"] and rows["first"][4] == "0.750 ± 0.000" and rows["first"][5] == "- |"
+    assert rows["first"][1:4] == ["6", "12", "18"] and rows["first"][4] == "0.750 ± 0.000"
+    assert rows["first"][5:] == ["-", "- |"]
     # second: lift 2,2,2,0,0,0 -> 6 of 12; seed means 1.0 x3 and 0.5 x3 against 0.75: differences +-0.25
     assert rows["second"][1:4] == ["6", "12", "18"] and rows["second"][4] == "0.750 ± 0.112"
-    assert rows["second"][5] == "+0.000 ± 0.112 |"
+    # won: lift's second episode in seeds 1000-1002; lost: lift's first in seeds 1003-1005
+    assert rows["second"][5:] == ["+0.000 ± 0.112", "3 / 3 |"]
     assert out.stat().st_size > 0
+
+
+def test_episodes_won_and_lost_are_counted_episode_by_episode(tmp_path, capsys):
+    _write_model(tmp_path / "a", [{"lift_block": 1, "open_drawer": 2}] * 6)
+    _write_model(tmp_path / "b", [{"lift_block": 1, "open_drawer": 1}] * 6, failed_first=True)
+    _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'a'}", f"c={tmp_path / 'b'}"])
+    rows = [line.split(" | ") for line in capsys.readouterr().out.splitlines() if line.startswith(("| b ", "| c "))]
+    assert [row[3] for row in rows] == ["18", "12"]
+    # c wins lift's second episode and loses lift's first and open_drawer's first, in each of the six seeds
+    assert [row[-1] for row in rows] == ["0 / 0 |", "6 / 12 |"]
 
 
 def test_a_missing_seed_names_the_file(tmp_path):

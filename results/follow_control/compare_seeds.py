@@ -4,7 +4,8 @@
 
 reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model, prints a markdown table (successes per
 task, the total, the mean over seeds with its standard error, and each model's per-seed difference to the
-first model, paired by seed since each seed's scenes are the same for every model) and draws the per-task
+first model, paired by seed since each seed's scenes are the same for every model, with the episodes it wins and
+loses against the first: an episode is one scene, instruction and policy seed, the same for every model) and draws the per-task
 successes as grouped bars into OUT.png. Models that also have PREFIX_chains20_seed1003.json and ..._seed1004.json
 (`evaluate --episodes 0 --chains 20`) get a second table: Avg. Len over those 40 chains, and each model's difference
 to the first such model paired chain by chain (the chains of a seed are the same for every model).
@@ -19,10 +20,12 @@ import numpy as np
 SEEDS = tuple(range(1000, 1006))
 
 
-def load(prefix: str) -> tuple[dict[str, int], np.ndarray]:
-    """Successes per task over the seeds, and each seed's average success."""
+def load(prefix: str) -> tuple[dict[str, int], np.ndarray, set[tuple[int, str, int]]]:
+    """Successes per task over the seeds, each seed's average success, and the failed episodes as (evaluation
+    seed, task, episode seed)."""
     per_task: dict[str, int] = {}
     averages = []
+    failed = set()
     for seed in SEEDS:
         path = Path(f"{prefix}_seed{seed}.json")
         if not path.is_file():
@@ -31,7 +34,8 @@ def load(prefix: str) -> tuple[dict[str, int], np.ndarray]:
         averages.append(result["average_success"])
         for task, row in result["tasks"].items():
             per_task[task] = per_task.get(task, 0) + row["successes"]
-    return per_task, np.array(averages)
+            failed.update((seed, task, failure["seed"]) for failure in row["failures"])
+    return per_task, np.array(averages), failed
 
 
 CHAIN_SEEDS = (1003, 1004)
@@ -75,14 +79,16 @@ def main(argv: list[str]) -> None:
     out, models = Path(argv[0]), [arg.split("=", 1) for arg in argv[1:]]
     loaded = {label: load(prefix) for label, prefix in models}
     tasks = list(next(iter(loaded.values()))[0])
-    first = next(iter(loaded.values()))[1]
-    print("| model | " + " | ".join(tasks) + " | all | mean ± stderr | paired difference to the first |")
-    print("| --- " * (len(tasks) + 4) + "|")
-    for i, (label, (per_task, averages)) in enumerate(loaded.items()):
+    _, first, first_failed = next(iter(loaded.values()))
+    print("| model | " + " | ".join(tasks) + " | all | mean ± stderr | paired difference to the first | "
+          "episodes won / lost against the first |")
+    print("| --- " * (len(tasks) + 5) + "|")
+    for i, (label, (per_task, averages, failed)) in enumerate(loaded.items()):
         difference = averages - first
         paired = "-" if i == 0 else f"{difference.mean():+.3f} ± {stderr(difference):.3f}"
+        flips = "-" if i == 0 else f"{len(first_failed - failed)} / {len(failed - first_failed)}"
         print(f"| {label} | " + " | ".join(str(per_task[t]) for t in tasks) +
-              f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} |")
+              f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} | {flips} |")
 
     chains = {label: loaded_chains for label, prefix in models if (loaded_chains := load_chains(prefix)) is not None}
     if chains:
@@ -103,7 +109,7 @@ def main(argv: list[str]) -> None:
     x = np.arange(len(tasks))
     width = 0.8 / len(loaded)
     episodes = 2 * len(SEEDS)
-    for i, (label, (per_task, averages)) in enumerate(loaded.items()):
+    for i, (label, (per_task, _, _)) in enumerate(loaded.items()):
         ax.bar(x + (i - (len(loaded) - 1) / 2) * width, [per_task[t] for t in tasks], width,
                label=f"{label}: {sum(per_task.values())}/{episodes * len(tasks)}")
     ax.set_xticks(x, [t.replace("_", " ") for t in tasks], rotation=40, ha="right")
