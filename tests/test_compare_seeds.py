@@ -42,7 +42,7 @@ def test_totals_means_and_paired_differences(tmp_path, capsys):
     # second: lift 2,2,2,0,0,0 -> 6 of 12; seed means 1.0 x3 and 0.5 x3 against 0.75: differences +-0.25
     assert rows["second"][1:4] == ["6", "12", "18"] and rows["second"][4] == "0.750 ± 0.112"
     # won: lift's second episode in seeds 1000-1002; lost: lift's first in seeds 1003-1005
-    assert rows["second"][5:] == ["+0.000 ± 0.112", "3 / 3 |"]
+    assert rows["second"][5:] == ["+0.000 ± 0.112", "3 / 3 (1.00) |"]
     assert out.stat().st_size > 0
 
 
@@ -53,7 +53,7 @@ def test_episodes_won_and_lost_are_counted_episode_by_episode(tmp_path, capsys):
     rows = [line.split(" | ") for line in capsys.readouterr().out.splitlines() if line.startswith(("| b ", "| c "))]
     assert [row[3] for row in rows] == ["18", "12"]
     # c wins lift's second episode and loses lift's first and open_drawer's first, in each of the six seeds
-    assert [row[-1] for row in rows] == ["0 / 0 |", "6 / 12 |"]
+    assert [row[-1] for row in rows] == ["0 / 0 (1.00) |", "6 / 12 (0.24) |"]
 
 
 def test_a_missing_seed_names_the_file(tmp_path):
@@ -87,3 +87,10 @@ def test_chains_are_paired_chain_by_chain_even_when_every_model_completes_one(tm
     # lengths a: 0 1 2 5 (mean 2), b: 1 3 2 5 (mean 2.75); differences 1 2 0 0
     assert rows["a"][-2] == "2.000 ± 1.080" and rows["b"][-2] == "2.750 ± 0.854"
     assert rows["b"][-1] == "+0.750 ± 0.479 |"
+
+
+def test_the_mcnemar_p_value_is_the_exact_two_sided_binomial_tail():
+    mcnemar_p = _script().mcnemar_p
+    assert mcnemar_p(0, 0) == mcnemar_p(3, 3) == 1.0
+    assert mcnemar_p(0, 5) == mcnemar_p(5, 0) == 2 / 32
+    assert mcnemar_p(1, 9) == 2 * (1 + 10) / 1024

@@ -2,16 +2,18 @@
 
     python results/follow_control/compare_seeds.py OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
 
-reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model, prints a markdown table (successes per
-task, the total, the mean over seeds with its standard error, and each model's per-seed difference to the
-first model, paired by seed since each seed's scenes are the same for every model, with the episodes it wins and
-loses against the first: an episode is one scene, instruction and policy seed, the same for every model) and draws the per-task
-successes as grouped bars into OUT.png. Models that also have PREFIX_chains20_seed1003.json and ..._seed1004.json
-(`evaluate --episodes 0 --chains 20`) get a second table: Avg. Len over those 40 chains, and each model's difference
-to the first such model paired chain by chain (the chains of a seed are the same for every model).
+reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model and prints a markdown table: successes per
+task, the total, the mean over seeds with its standard error, and, against the first model, the per-seed
+difference (paired by seed, since each seed's scenes are the same for every model) and the episodes won and lost
+(an episode is one scene, instruction and policy seed, the same for every model) with the exact McNemar p-value of
+that split. It draws the per-task successes as grouped bars into OUT.png. Models that also have
+PREFIX_chains20_seed1003.json and ..._seed1004.json (`evaluate --episodes 0 --chains 20`) get a second table: Avg.
+Len over those 40 chains, and each model's difference to the first such model paired chain by chain (the chains of
+a seed are the same for every model).
 """
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -39,6 +41,13 @@ def load(prefix: str) -> tuple[dict[str, int], np.ndarray, set[tuple[int, str, i
 
 
 CHAIN_SEEDS = (1003, 1004)
+
+
+def mcnemar_p(won: int, lost: int) -> float:
+    """Exact two-sided McNemar test: the chance of a split at least this uneven among won + lost episodes if
+    each of them were a coin flip between the two models."""
+    n = won + lost
+    return min(1.0, 2 * sum(math.comb(n, k) for k in range(min(won, lost) + 1)) / 2 ** n) if n else 1.0
 
 
 def stderr(values: np.ndarray) -> float:
@@ -81,12 +90,13 @@ def main(argv: list[str]) -> None:
     tasks = list(next(iter(loaded.values()))[0])
     _, first, first_failed = next(iter(loaded.values()))
     print("| model | " + " | ".join(tasks) + " | all | mean ± stderr | paired difference to the first | "
-          "episodes won / lost against the first |")
+          "episodes won / lost against the first (McNemar p) |")
     print("| --- " * (len(tasks) + 5) + "|")
     for i, (label, (per_task, averages, failed)) in enumerate(loaded.items()):
         difference = averages - first
         paired = "-" if i == 0 else f"{difference.mean():+.3f} ± {stderr(difference):.3f}"
-        flips = "-" if i == 0 else f"{len(first_failed - failed)} / {len(failed - first_failed)}"
+        won, lost = len(first_failed - failed), len(failed - first_failed)
+        flips = "-" if i == 0 else f"{won} / {lost} ({mcnemar_p(won, lost):.2f})"
         print(f"| {label} | " + " | ".join(str(per_task[t]) for t in tasks) +
               f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} | {flips} |")
 
