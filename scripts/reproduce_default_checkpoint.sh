@@ -27,10 +27,11 @@ trivla-drake collect --out "$DART_DATA" --episodes-per-task 60 --action-noise 1
 #    ablation arms and the 10%-data arm (Systems 2 and 3 are untouched by the policy stage). --seed
 #    also draws the 10% subset, so both parts of that arm run with seed 0 (the same 72 episodes).
 POLICY=(train --stage policy --data "$DART_DATA" --lr 3e-4 --feature-stride 3 --threads 1)
-six_seeds() {  # six_seeds POLICY PREFIX [flags...]: `evaluate --episodes 2` on seeds 1000-1005 -> PREFIX_seedS.json
-  local policy=$1 prefix=$2
+six_seeds() {  # six_seeds POLICY PREFIX [flags...]: `evaluate --episodes 2` on seeds 1000-1005 (or EVAL_SEEDS)
+  #   -> PREFIX_seedS.json
+  local policy=$1 prefix=$2 seed
   shift 2
-  for seed in 1000 1001 1002 1003 1004 1005; do
+  for seed in ${EVAL_SEEDS:-1000 1001 1002 1003 1004 1005}; do
     trivla-drake evaluate --policy "$policy" --episodes 2 --seed "$seed" --workers 2 --no-progress --json "$@" \
         > "${prefix}_seed$seed.json"
   done
@@ -706,4 +707,14 @@ fi
 #     stack block, and the 40 chains.
 if [[ "${PHASE_THIRD:-0}" == 1 ]]; then
   follow_with_chains heldall3 results/follow_seeds "$RUNS/heldall2_follow/final" 5
+fi
+# 40. Optional (FRESH_SEEDS=1, after steps 36, 38 and 39; results/follow_seeds/): the shipped model was chosen by its
+#     score on seeds 1000-1005, so its 107 there is a high draw; the shipped model and steps 36, 38 and 39 on six
+#     seeds none of them was chosen on (1006-1011) -> results/follow_seeds/fresh_NAME_seedS.json.
+if [[ "${FRESH_SEEDS:-0}" == 1 ]]; then
+  mkdir -p results/follow_seeds
+  for pair in shipped=models/trivla_cpu heldall2="$RUNS/heldall2_export" heldall2b="$RUNS/heldall2b_export" \
+      heldall3="$RUNS/heldall3_export"; do
+    EVAL_SEEDS="1006 1007 1008 1009 1010 1011" six_seeds "${pair#*=}" "results/follow_seeds/fresh_${pair%%=*}"
+  done
 fi

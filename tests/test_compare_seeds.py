@@ -18,10 +18,11 @@ def _script():
     return module
 
 
-def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]], failed_first: bool = False) -> None:
+def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]], failed_first: bool = False,
+                 first_seed: int = 1000) -> None:
     """Two episodes per task and seed (episode seeds 0 and 1): with `count` successes the last 2 - count fail, or
     the first ones where `failed_first`."""
-    for seed, successes in zip(range(1000, 1006), successes_per_seed):
+    for seed, successes in zip(range(first_seed, first_seed + 6), successes_per_seed):
         def failures(count):
             return [{"seed": k} for k in (range(2 - count) if failed_first else range(count, 2))]
         tasks = {task: {"success_rate": count / 2, "episodes": 2, "successes": count, "failures": failures(count)}
@@ -94,3 +95,15 @@ def test_the_mcnemar_p_value_is_the_exact_two_sided_binomial_tail():
     assert mcnemar_p(0, 0) == mcnemar_p(3, 3) == 1.0
     assert mcnemar_p(0, 5) == mcnemar_p(5, 0) == 2 / 32
     assert mcnemar_p(1, 9) == 2 * (1 + 10) / 1024
+
+
+def test_other_seeds_are_read_with_seeds_and_a_bad_range_names_the_option(tmp_path, capsys):
+    _write_model(tmp_path / "a", [{"lift_block": 2}] * 6, first_seed=1006)
+    _write_model(tmp_path / "b", [{"lift_block": 0}] * 6, first_seed=1006)
+    _script().main(["--seeds", "1006-1011", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| b "))
+    assert row.split(" | ")[2:] == ["0", "0.000 ± 0.000", "-1.000 ± 0.000", "0 / 12 (0.00) |"]
+    with pytest.raises(SystemExit, match="a_seed1000.json: no such evaluation"):
+        _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+    with pytest.raises(SystemExit, match="--seeds: expected FIRST-LAST"):
+        _script().main(["--seeds", "1011-1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])

@@ -37,6 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
+           "FRESH_SEEDS": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -253,3 +254,13 @@ def test_the_reseeded_follow_is_step_36_with_another_seed_and_the_third_leg_goes
     assert option(third, "--init") == option(second, "--out") + "/final"
     assert _without(reseeded, "--out", "--seed") == _without(second, "--out", "--seed")
     assert _without(third, "--init", "--out") == _without(reseeded, "--init", "--out")
+
+
+def test_the_fresh_seeds_evaluate_the_shipped_model_and_the_held_lineage_on_seeds_none_was_chosen_on(calls):
+    """Step 40: seeds 1006-1011 for the shipped model and steps 36, 38 and 39, with the six-seed flags."""
+    for policy in ("models/trivla_cpu", "runs/heldall2_export", "runs/heldall2b_export", "runs/heldall3_export"):
+        fresh = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy
+                 and int(option(argv, "--seed")) > 1005 and option(argv, "--chains") is None]
+        assert sorted(option(argv, "--seed") for argv in fresh) == [str(seed) for seed in range(1006, 1012)]
+        assert all(_without(argv, "--seed", "--policy") == _without(fresh[0], "--seed", "--policy") for argv in fresh)
+        assert option(fresh[0], "--episodes") == "2" and "--prelude" not in fresh[0]

@@ -1,8 +1,8 @@
 """Compare models evaluated on the same seeds (`evaluate --episodes 2 --seed S --json`, one file per seed).
 
-    python results/follow_control/compare_seeds.py OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
+    python results/follow_control/compare_seeds.py [--seeds FIRST-LAST] OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
 
-reads PREFIX_seed1000.json ... PREFIX_seed1005.json for each model and prints a markdown table: successes per
+reads PREFIX_seed1000.json ... PREFIX_seed1005.json (or FIRST ... LAST) for each model and prints a markdown table: successes per
 task, the total, the mean over seeds with its standard error, and, against the first model, the per-seed
 difference (paired by seed, since each seed's scenes are the same for every model) and the episodes won and lost
 (an episode is one scene, instruction and policy seed, the same for every model) with the exact McNemar p-value of
@@ -22,16 +22,16 @@ import numpy as np
 SEEDS = tuple(range(1000, 1006))
 
 
-def load(prefix: str) -> tuple[dict[str, int], np.ndarray, set[tuple[int, str, int]]]:
+def load(prefix: str, seeds: tuple[int, ...] = SEEDS) -> tuple[dict[str, int], np.ndarray, set[tuple[int, str, int]]]:
     """Successes per task over the seeds, each seed's average success, and the failed episodes as (evaluation
     seed, task, episode seed)."""
     per_task: dict[str, int] = {}
     averages = []
     failed = set()
-    for seed in SEEDS:
+    for seed in seeds:
         path = Path(f"{prefix}_seed{seed}.json")
         if not path.is_file():
-            raise SystemExit(f"{path}: no such evaluation (expected one file per seed {SEEDS[0]}-{SEEDS[-1]})")
+            raise SystemExit(f"{path}: no such evaluation (expected one file per seed {seeds[0]}-{seeds[-1]})")
         result = json.loads(path.read_text())
         averages.append(result["average_success"])
         for task, row in result["tasks"].items():
@@ -82,11 +82,24 @@ def chain_lengths(models: dict[str, tuple[dict, int, int]]) -> dict[str, np.ndar
             for label, (stopped, _, _) in models.items()}
 
 
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """`FIRST-LAST` -> (FIRST, ..., LAST)."""
+    first, _, last = text.partition("-")
+    if not (first.isdigit() and last.isdigit() and int(first) <= int(last)):
+        raise SystemExit(f"--seeds: expected FIRST-LAST (e.g. 1006-1011), got {text!r}")
+    return tuple(range(int(first), int(last) + 1))
+
+
 def main(argv: list[str]) -> None:
+    seeds = SEEDS
+    if argv[:1] == ["--seeds"]:
+        if len(argv) < 2:
+            raise SystemExit(__doc__)
+        seeds, argv = parse_seeds(argv[1]), argv[2:]
     if len(argv) < 2 or any("=" not in arg for arg in argv[1:]):
         raise SystemExit(__doc__)
     out, models = Path(argv[0]), [arg.split("=", 1) for arg in argv[1:]]
-    loaded = {label: load(prefix) for label, prefix in models}
+    loaded = {label: load(prefix, seeds) for label, prefix in models}
     tasks = list(next(iter(loaded.values()))[0])
     _, first, first_failed = next(iter(loaded.values()))
     print("| model | " + " | ".join(tasks) + " | all | mean ± stderr | paired difference to the first | "
@@ -118,13 +131,13 @@ def main(argv: list[str]) -> None:
     fig, ax = plt.subplots(figsize=(11, 4))
     x = np.arange(len(tasks))
     width = 0.8 / len(loaded)
-    episodes = 2 * len(SEEDS)
+    episodes = 2 * len(seeds)
     for i, (label, (per_task, _, _)) in enumerate(loaded.items()):
         ax.bar(x + (i - (len(loaded) - 1) / 2) * width, [per_task[t] for t in tasks], width,
                label=f"{label}: {sum(per_task.values())}/{episodes * len(tasks)}")
     ax.set_xticks(x, [t.replace("_", " ") for t in tasks], rotation=40, ha="right")
     ax.set_ylim(0, episodes + 0.5)
-    ax.set_ylabel(f"successes of {episodes} (seeds {SEEDS[0]}-{SEEDS[-1]})")
+    ax.set_ylabel(f"successes of {episodes} (seeds {seeds[0]}-{seeds[-1]})")
     ax.legend(fontsize=8, ncol=min(4, len(loaded)), loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.tight_layout()
     fig.savefig(out, dpi=120)
