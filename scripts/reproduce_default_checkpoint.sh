@@ -673,7 +673,7 @@ fi
 follow_with_chains() {  # follow_with_chains NAME DIR INIT [SEED]: follow_carrying with every carrying task from INIT,
   #   then the 40 chains -> DIR/NAME_chains20_seedS.json
   mkdir -p "$2"
-  follow_carrying "$1" "$2" "$CARRYING" "$3" "${4:-3}"
+  follow_carrying "$1" "$2" "$CARRYING" "$3" "${4:-}"
   forty_chains "$RUNS/$1_export" "$2/$1"
 }
 # 35. Optional (CONTROL=1; results/follow_control/): the control for steps 32-34: the shipped model followed as step
@@ -709,7 +709,7 @@ if [[ "${PHASE_THIRD:-0}" == 1 ]]; then
   follow_with_chains heldall3 results/follow_seeds "$RUNS/heldall2_follow/final" 5
 fi
 # 40. Optional (FRESH_SEEDS=1, after steps 36, 38 and 39; results/follow_seeds/): the shipped model was chosen by its
-#     score on seeds 1000-1005, so its 107 there is a high draw; the shipped model and steps 36, 38 and 39 on six
+#     score on seeds 1000-1005, so its 107 there may be a high draw; the shipped model and steps 36, 38 and 39 on six
 #     seeds none of them was chosen on (1006-1011) -> results/follow_seeds/fresh_NAME_seedS.json.
 if [[ "${FRESH_SEEDS:-0}" == 1 ]]; then
   mkdir -p results/follow_seeds

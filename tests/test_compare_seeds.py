@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "results" / "follow_control" / "compare_seeds.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("compare_seeds", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture
+def script(results_script):
+    return results_script("follow_control/compare_seeds.py")
 
 
 def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]], failed_first: bool = False,
@@ -31,11 +26,11 @@ def _write_model(prefix: Path, successes_per_seed: list[dict[str, int]], failed_
         Path(f"{prefix}_seed{seed}.json").write_text(json.dumps({"average_success": average, "tasks": tasks}))
 
 
-def test_totals_means_and_paired_differences(tmp_path, capsys):
+def test_totals_means_and_paired_differences(tmp_path, capsys, script):
     _write_model(tmp_path / "a", [{"lift_block": 1, "open_drawer": 2}] * 6)
     _write_model(tmp_path / "b", [{"lift_block": 2, "open_drawer": 2}] * 3 + [{"lift_block": 0, "open_drawer": 2}] * 3)
     out = tmp_path / "compare.png"
-    _script().main([str(out), f"first={tmp_path / 'a'}", f"second={tmp_path / 'b'}"])
+    script.main([str(out), f"first={tmp_path / 'a'}", f"second={tmp_path / 'b'}"])
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in capsys.readouterr().out.splitlines()
             if line.startswith("| first") or line.startswith("| second")}
     assert rows["first"][1:4] == ["6", "12", "18"] and rows["first"][4] == "0.750 ± 0.000"
@@ -47,25 +42,25 @@ def test_totals_means_and_paired_differences(tmp_path, capsys):
     assert out.stat().st_size > 0
 
 
-def test_episodes_won_and_lost_are_counted_episode_by_episode(tmp_path, capsys):
+def test_episodes_won_and_lost_are_counted_episode_by_episode(tmp_path, capsys, script):
     _write_model(tmp_path / "a", [{"lift_block": 1, "open_drawer": 2}] * 6)
     _write_model(tmp_path / "b", [{"lift_block": 1, "open_drawer": 1}] * 6, failed_first=True)
-    _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'a'}", f"c={tmp_path / 'b'}"])
+    script.main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'a'}", f"c={tmp_path / 'b'}"])
     rows = [line.split(" | ") for line in capsys.readouterr().out.splitlines() if line.startswith(("| b ", "| c "))]
     assert [row[3] for row in rows] == ["18", "12"]
     # c wins lift's second episode and loses lift's first and open_drawer's first, in each of the six seeds
     assert [row[-1] for row in rows] == ["0 / 0 (1.00) |", "6 / 12 (0.24) |"]
 
 
-def test_a_missing_seed_names_the_file(tmp_path):
+def test_a_missing_seed_names_the_file(tmp_path, script):
     _write_model(tmp_path / "a", [{"lift_block": 1}] * 5)  # seed 1005 missing
     with pytest.raises(SystemExit, match="a_seed1005.json: no such evaluation"):
-        _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+        script.main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
 
 
-def test_arguments_without_a_label_print_the_usage(tmp_path):
+def test_arguments_without_a_label_print_the_usage(tmp_path, script):
     with pytest.raises(SystemExit, match="LABEL=PREFIX"):
-        _script().main([str(tmp_path / "x.png"), str(tmp_path / "a")])
+        script.main([str(tmp_path / "x.png"), str(tmp_path / "a")])
 
 
 def _write_chains(prefix: Path, stopped: dict[int, dict[int, int]]) -> None:
@@ -76,13 +71,13 @@ def _write_chains(prefix: Path, stopped: dict[int, dict[int, int]]) -> None:
             {"chains": {"count": 2, "completed_at_least": [0.0] * 5, "failures": failures}}))
 
 
-def test_chains_are_paired_chain_by_chain_even_when_every_model_completes_one(tmp_path, capsys):
+def test_chains_are_paired_chain_by_chain_even_when_every_model_completes_one(tmp_path, capsys, script):
     for name in ("a", "b"):
         _write_model(tmp_path / name, [{"lift_block": 1}] * 6)
     # chain (1004, 2) is completed by both models, so it is in neither file's failures
     _write_chains(tmp_path / "a", {1003: {1: 0, 2: 1}, 1004: {1: 2}})
     _write_chains(tmp_path / "b", {1003: {1: 1, 2: 3}, 1004: {1: 2}})
-    _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
+    script.main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in capsys.readouterr().out.splitlines()
             if line.startswith("| a |") or line.startswith("| b |")}
     # lengths a: 0 1 2 5 (mean 2), b: 1 3 2 5 (mean 2.75); differences 1 2 0 0
@@ -90,20 +85,20 @@ def test_chains_are_paired_chain_by_chain_even_when_every_model_completes_one(tm
     assert rows["b"][-1] == "+0.750 ± 0.479 |"
 
 
-def test_the_mcnemar_p_value_is_the_exact_two_sided_binomial_tail():
-    mcnemar_p = _script().mcnemar_p
+def test_the_mcnemar_p_value_is_the_exact_two_sided_binomial_tail(script):
+    mcnemar_p = script.mcnemar_p
     assert mcnemar_p(0, 0) == mcnemar_p(3, 3) == 1.0
     assert mcnemar_p(0, 5) == mcnemar_p(5, 0) == 2 / 32
     assert mcnemar_p(1, 9) == 2 * (1 + 10) / 1024
 
 
-def test_other_seeds_are_read_with_seeds_and_a_bad_range_names_the_option(tmp_path, capsys):
+def test_other_seeds_are_read_with_seeds_and_a_bad_range_names_the_option(tmp_path, capsys, script):
     _write_model(tmp_path / "a", [{"lift_block": 2}] * 6, first_seed=1006)
     _write_model(tmp_path / "b", [{"lift_block": 0}] * 6, first_seed=1006)
-    _script().main(["--seeds", "1006-1011", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
+    script.main(["--seeds", "1006-1011", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| b "))
     assert row.split(" | ")[2:] == ["0", "0.000 ± 0.000", "-1.000 ± 0.000", "0 / 12 (0.00) |"]
     with pytest.raises(SystemExit, match="a_seed1000.json: no such evaluation"):
-        _script().main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+        script.main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
     with pytest.raises(SystemExit, match="--seeds: expected FIRST-LAST"):
-        _script().main(["--seeds", "1011-1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+        script.main(["--seeds", "1011-1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import importlib.util
 import json
 import shutil
 import subprocess
@@ -15,20 +14,18 @@ import pytest
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("join_data_efficiency", RESULTS / "join_data_efficiency.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture
+def script(results_script):
+    return results_script("join_data_efficiency.py")
 
 
 def _stored(path: str) -> dict:
     return json.loads((RESULTS / path).read_text())
 
 
-def test_the_stored_report_is_the_join_of_its_two_runs():
+def test_the_stored_report_is_the_join_of_its_two_runs(script):
     """results/report.json is what the script makes, and it keeps the ablation and adds the 10% arm."""
-    join = _script().join
+    join = script.join
     full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
     joined = join(full, arm)
     assert joined == full  # the committed report is already joined: joining again changes nothing
@@ -38,8 +35,8 @@ def test_the_stored_report_is_the_join_of_its_two_runs():
     assert joined["data_efficiency"]["10%"] == pytest.approx(arm["data10"]["average_success"])
 
 
-def test_reports_that_disagree_on_the_full_model_are_not_joined():
-    join = _script().join
+def test_reports_that_disagree_on_the_full_model_are_not_joined(script):
+    join = script.join
     full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
     changed = copy.deepcopy(arm)
     changed["main"]["average_success"] += 0.01
