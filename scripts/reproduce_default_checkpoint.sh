@@ -718,3 +718,21 @@ if [[ "${FRESH_SEEDS:-0}" == 1 ]]; then
     EVAL_SEEDS="1006 1007 1008 1009 1010 1011" six_seeds "${pair#*=}" "results/follow_seeds/fresh_${pair%%=*}"
   done
 fi
+# 41. Optional (SOUP=1, after steps 36, 38 and 39; results/model_soup/): one follow's seed moves its score by up to
+#     0.08 (step 38); the uniform weight average (`soup`) of follows from one start averages that draw away at one
+#     model's cost. Steps 36 and 38 (siblings from step 34's model), and those two with step 39 (step 36 followed
+#     further); each on all twelve seeds 1000-1011 and the 40 chains.
+if [[ "${SOUP:-0}" == 1 ]]; then
+  mkdir -p results/model_soup
+  trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" --out "$RUNS/soup2" \
+      --drop-unused-llm-layers
+  trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" "$RUNS/heldall3_follow/final" \
+      --out "$RUNS/soup3" --drop-unused-llm-layers
+  for name in soup3 soup2; do
+    EVAL_SEEDS="1000 1001 1002 1003 1004 1005 1006 1007 1008 1009 1010 1011" six_seeds "$RUNS/$name" \
+        "results/model_soup/$name"
+  done
+  for name in soup3 soup2; do
+    forty_chains "$RUNS/$name" "results/model_soup/$name"
+  done
+fi

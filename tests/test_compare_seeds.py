@@ -102,3 +102,13 @@ def test_other_seeds_are_read_with_seeds_and_a_bad_range_names_the_option(tmp_pa
         script.main([str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
     with pytest.raises(SystemExit, match="--seeds: expected FIRST-LAST"):
         script.main(["--seeds", "1011-1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])
+
+
+def test_a_model_can_join_seeds_from_several_prefixes(tmp_path, capsys, script):
+    _write_model(tmp_path / "old", [{"lift_block": 1}] * 6)  # seeds 1000-1005
+    _write_model(tmp_path / "fresh", [{"lift_block": 2}] * 6, first_seed=1006)
+    script.main(["--seeds", "1000-1011", str(tmp_path / "x.png"), f"joined={tmp_path / 'old'}+{tmp_path / 'fresh'}"])
+    row = next(line.split(" | ") for line in capsys.readouterr().out.splitlines() if line.startswith("| joined"))
+    assert row[1:3] == ["18", "18"]  # 6 x 1 from the old seeds, 6 x 2 from the fresh ones
+    with pytest.raises(SystemExit, match=r"old_seed1012.json or .*fresh_seed1012.json: no such evaluation"):
+        script.main(["--seeds", "1000-1012", str(tmp_path / "x.png"), f"joined={tmp_path / 'old'}+{tmp_path / 'fresh'}"])

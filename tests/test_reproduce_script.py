@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1",
+           "FRESH_SEEDS": "1", "SOUP": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -60,7 +60,7 @@ def test_every_command_of_the_reproduce_script_parses(calls):
     for argv in calls:
         parser.parse_args(argv)  # exits (SystemExit) on an unknown flag or a bad value
     commands = [argv[0] for argv in calls]
-    assert {"collect", "train", "export", "tables", "probe", "evaluate"} <= set(commands)
+    assert {"collect", "train", "export", "soup", "tables", "probe", "evaluate"} <= set(commands)
 
 
 def test_the_shipped_checkpoint_is_the_grounded_recipe_on_the_9000_step_dart_run(calls):
@@ -264,3 +264,23 @@ def test_the_fresh_seeds_evaluate_the_shipped_model_and_the_held_lineage_on_seed
         assert sorted(option(argv, "--seed") for argv in fresh) == [str(seed) for seed in range(1006, 1012)]
         assert all(_without(argv, "--seed", "--policy") == _without(fresh[0], "--seed", "--policy") for argv in fresh)
         assert option(fresh[0], "--episodes") == "2" and "--prelude" not in fresh[0]
+
+
+def test_the_soups_average_the_held_lineages_follows_and_run_twelve_seeds_and_the_chains(calls):
+    """Step 41: the soup of steps 36 and 38 (one start, two seeds) and of those with step 39, from the follows'
+    final checkpoints, each evaluated as the six seeds are, on seeds 1000-1011, and on the 40 chains."""
+    soups = {option(argv, "--out"): argv[1:argv.index("--out")] for argv in calls if argv[0] == "soup"}
+    follows = {}
+    for name in ("heldall2", "heldall2b", "heldall3"):
+        assert run_writing(calls, f"runs/{name}_follow")[0] == "train"  # steps 36, 38 and 39's follow runs
+        follows[name] = f"runs/{name}_follow/final"
+    assert soups == {"runs/soup2": [follows["heldall2"], follows["heldall2b"]],
+                     "runs/soup3": [follows["heldall2"], follows["heldall2b"], follows["heldall3"]]}
+    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
+               and option(argv, "--chains") is None)
+    for policy in soups:
+        runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy
+                and option(argv, "--chains") is None]
+        assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1012))
+        assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+        assert _forty_chain_seeds(calls, policy) == ["1003", "1004"]

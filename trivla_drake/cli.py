@@ -265,10 +265,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_collect_parser(commands)
     add_evaluate_parser(commands)
-    from trivla_drake.train.cli_commands import add_export_parser, add_train_parser
+    from trivla_drake.train.cli_commands import add_export_parser, add_soup_parser, add_train_parser
 
     add_train_parser(commands)
     add_export_parser(commands)
+    add_soup_parser(commands)
 
     tables = commands.add_parser("tables", help="the paper's tables for our suite (success, chains, ablation, "
                                  "data efficiency, paraphrases, latency), Markdown + JSON + plots")

@@ -2,7 +2,9 @@
 
     python results/follow_control/compare_seeds.py [--seeds FIRST-LAST] OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
 
-reads PREFIX_seed1000.json ... PREFIX_seed1005.json (or FIRST ... LAST) for each model and prints a markdown table: successes per
+reads PREFIX_seed1000.json ... PREFIX_seed1005.json (or FIRST ... LAST) for each model (PREFIX may be several,
+joined by "+", where a model's seeds were evaluated into different folders: each seed's file is taken from the
+first that has it) and prints a markdown table: successes per
 task, the total, the mean over seeds with its standard error, and, against the first model, the per-seed
 difference (paired by seed, since each seed's scenes are the same for every model) and the episodes won and lost
 (an episode is one scene, instruction and policy seed, the same for every model) with the exact McNemar p-value of
@@ -29,9 +31,11 @@ def load(prefix: str, seeds: tuple[int, ...] = SEEDS) -> tuple[dict[str, int], n
     averages = []
     failed = set()
     for seed in seeds:
-        path = Path(f"{prefix}_seed{seed}.json")
-        if not path.is_file():
-            raise SystemExit(f"{path}: no such evaluation (expected one file per seed {seeds[0]}-{seeds[-1]})")
+        candidates = [Path(f"{one}_seed{seed}.json") for one in prefix.split("+")]
+        path = next((candidate for candidate in candidates if candidate.is_file()), None)
+        if path is None:
+            raise SystemExit(f"{' or '.join(map(str, candidates))}: no such evaluation (expected one file per seed "
+                             f"{seeds[0]}-{seeds[-1]})")
         result = json.loads(path.read_text())
         averages.append(result["average_success"])
         for task, row in result["tasks"].items():
@@ -56,12 +60,14 @@ def stderr(values: np.ndarray) -> float:
 
 def load_chains(prefix: str) -> tuple[dict[tuple[int, int], int], int, int] | None:
     """Tasks completed by each chain that stopped early, keyed by (evaluation seed, chain seed); the number of
-    chains; and a chain's length. None where the chain files are missing."""
+    chains; and a chain's length (from the first of the "+"-joined prefixes with a file). None where the chain
+    files are missing."""
     stopped: dict[tuple[int, int], int] = {}
     count = 0
     for seed in CHAIN_SEEDS:
-        path = Path(f"{prefix}_chains20_seed{seed}.json")
-        if not path.is_file():
+        path = next((path for one in prefix.split("+") if (path := Path(f"{one}_chains20_seed{seed}.json")).is_file()),
+                    None)
+        if path is None:
             return None
         chains = json.loads(path.read_text())["chains"]
         count += chains["count"]

@@ -242,21 +242,25 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     return parser
 
 
+def _write_model_folder(command: str, args: argparse.Namespace, write, what: str = "") -> int:
+    """Runs `write()` (-> the folder written) and reports the folder's size, or a user error as exit code 2."""
+    try:
+        target = write()
+    except _user_errors() as error:
+        print(f"trivla-drake {command}: error: {error}", file=sys.stderr)
+        return 2
+    size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
+    print(f"wrote {target}{what} ({size / 1e6:.1f} MB, weights in {args.dtype})")
+    return 0
+
+
 def run_export(args: argparse.Namespace) -> int:
     """`trivla-drake export`: a checkpoint's model, without optimizer state, in a smaller dtype."""
     from trivla_drake.train.checkpoints import export_checkpoint
 
-    try:
-        target = export_checkpoint(
-            args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers,
-            trained_weights=args.trained_weights,
-        )
-    except _user_errors() as error:
-        print(f"trivla-drake export: error: {error}", file=sys.stderr)
-        return 2
-    size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
-    print(f"wrote {target} ({size / 1e6:.1f} MB, weights in {args.dtype})")
-    return 0
+    return _write_model_folder("export", args, lambda: export_checkpoint(
+        args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers,
+        trained_weights=args.trained_weights))
 
 
 def add_export_parser(commands) -> argparse.ArgumentParser:
@@ -275,6 +279,32 @@ def add_export_parser(commands) -> argparse.ArgumentParser:
                         help="of a run with --ema-decay: write the weights the optimizer trained, not their "
                              "moving average (which the checkpoint's model holds)")
     parser.set_defaults(run=run_export)
+    return parser
+
+
+def run_soup(args: argparse.Namespace) -> int:
+    """`trivla-drake soup`: the uniform weight average of checkpoints trained from one start."""
+    from trivla_drake.train.model_soup import soup_checkpoints
+
+    return _write_model_folder("soup", args, lambda: soup_checkpoints(
+        args.checkpoints, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers),
+        f": the average of {len(args.checkpoints)} models")
+
+
+def add_soup_parser(commands) -> argparse.ArgumentParser:
+    """Register `soup` on an argparse subparsers object."""
+    parser = commands.add_parser(
+        "soup", help="average the weights of policy checkpoints trained from one start (e.g. follow runs that "
+                     "differ in their seed) into one model, written as export writes one")
+    parser.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT",
+                        help="two or more checkpoint folders with the same config.json and the same frozen "
+                             "Systems 2 and 3 (runs' final/)")
+    parser.add_argument("--out", required=True, help="folder to write (replaced atomically if it exists)")
+    parser.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
+                        help="stored weight type (default float16); the average is taken in float32")
+    parser.add_argument("--drop-unused-llm-layers", action="store_true",
+                        help="keep only System 2's LLM layers up to its read-out layer, as export does")
+    parser.set_defaults(run=run_soup)
     return parser
 
 
