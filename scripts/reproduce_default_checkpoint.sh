@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 19.5 hours without the optional blocks;
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 24.5 hours without the optional blocks (steps 34, 36, 38, 39 and 41 make the shipped soup: about 5 of them);
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -527,6 +527,16 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follo
     --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
 trivla-drake export "$RUNS/sub4_follow/final" --out "$RUNS/sub4_export" --drop-unused-llm-layers
 six_seeds "$RUNS/sub4_export" "results/subcell_dense/sub4"
+preludes() {  # preludes POLICY PREFIX: every task after a one-task prelude (seeds 1000-1002) and a two-task one
+  #   (seed 1000) -> PREFIX_prelude1_seedS.json, PREFIX_prelude2_seed1000.json
+  local seed
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy "$1" --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
+        --json > "$2_prelude1_seed$seed.json"
+  done
+  trivla-drake evaluate --policy "$1" --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
+      > "$2_prelude2_seed1000.json"
+}
 # 29. The shipped checkpoint (results/subcell_follow/): step 28's model followed 5000 steps more with its settings
 #     (seed 2), so that System 1 adapts on every task to the new System 2's Q_vl; exported as models/trivla_cpu,
 #     six seeds, 40 more chains, every task after a one- and a two-task prelude, the grasps; then its own ablation
@@ -538,12 +548,7 @@ trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/sub4_follo
 trivla-drake export "$RUNS/sub4_follow2/final" --out models/trivla_cpu --drop-unused-llm-layers
 six_seeds models/trivla_cpu "results/subcell_follow/follow2"
 forty_chains models/trivla_cpu results/subcell_follow/follow2
-for seed in 1000 1001 1002; do
-  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --no-progress \
-      --json > "results/subcell_follow/follow2_prelude1_seed$seed.json"
-done
-trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed 1000 --workers 2 --no-progress --json \
-    > results/subcell_follow/follow2_prelude2_seed1000.json
+preludes models/trivla_cpu results/subcell_follow/follow2
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/subcell_follow/grasps_follow2.md
 ablation_arms models/trivla_cpu arm2 results/subcell_follow
 # 30. The data-efficiency arm of the shipped recipe (results/data_efficiency/; Table 1 bottom): 96 demonstrations
@@ -655,12 +660,12 @@ if [[ "${PHASE:-0}" == 1 ]]; then
       results/stack_phase/held_bind.json > results/stack_phase/held_bind.md
   follow_carrying held results/stack_phase
 fi
-# 34. Optional (PHASE_ALL=1; results/stack_phase/): step 33 with the carrying frames of every task that carries a block to a
+# 34. (PHASE_ALL=0 skips it, but step 41 needs it; results/stack_phase/): step 33 with the carrying frames of every task that carries a block to a
 #     release (stack, place in bowl, unstack, rotate left and right), so that the held-block read-out also learns
 #     where those tasks release theirs (step 33's, trained on stack's alone, cost them); where it puts the sub-goal
 #     with the block in hand along the shipped model's stack episodes; followed and evaluated alike.
 CARRYING=stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right
-if [[ "${PHASE_ALL:-0}" == 1 ]]; then
+if [[ "${PHASE_ALL:-1}" == 1 ]]; then
   mkdir -p results/stack_phase
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/heldall_bind" --init models/trivla_cpu \
       --grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --grounding-reads-gripper --bind-held-only \
@@ -683,10 +688,10 @@ follow_with_chains() {  # follow_with_chains NAME DIR INIT [SEED]: follow_carryi
 if [[ "${CONTROL:-0}" == 1 ]]; then
   follow_with_chains control results/follow_control models/trivla_cpu
 fi
-# 36. Optional (PHASE_LONGER=1, after step 34; results/follow_control/): step 34's model followed 2500 steps more
+# 36. (PHASE_LONGER=0 skips it, but step 41 needs it; after step 34; results/follow_control/): step 34's model followed 2500 steps more
 #     (seed 4), as the shipped model's lineage gained from a longer follow (results/subcell_follow/); export, six
 #     seeds, where it carries the stack block, and the 40 chains of step 29.
-if [[ "${PHASE_LONGER:-0}" == 1 ]]; then
+if [[ "${PHASE_LONGER:-1}" == 1 ]]; then
   follow_with_chains heldall2 results/follow_control "$RUNS/heldall_follow/final" 4
 fi
 # 37. Optional (CONTROL_LONGER=1, after step 35; results/follow_control/): the control of step 36: step 35's model
@@ -695,21 +700,21 @@ fi
 if [[ "${CONTROL_LONGER:-0}" == 1 ]]; then
   follow_with_chains control2 results/follow_control "$RUNS/control_follow/final" 4
 fi
-# 38. Optional (PHASE_RESEED=1, after step 34; results/follow_seeds/): step 36 again with seed 5 in place of seed 4,
+# 38. (PHASE_RESEED=0 skips it, but step 41 needs it; after step 34; results/follow_seeds/): step 36 again with seed 5 in place of seed 4,
 #     from the same start (step 34's followed model): two follows that differ only in their seed measure how far
 #     apart one follow run's result can land by chance; export, six seeds, where it carries the stack block, and the
 #     40 chains.
-if [[ "${PHASE_RESEED:-0}" == 1 ]]; then
+if [[ "${PHASE_RESEED:-1}" == 1 ]]; then
   follow_with_chains heldall2b results/follow_seeds "$RUNS/heldall_follow/final" 5
 fi
-# 39. Optional (PHASE_THIRD=1, after step 36; results/follow_seeds/): step 36's model followed 2500 steps more
+# 39. (PHASE_THIRD=0 skips it, but step 41 needs it; after step 36; results/follow_seeds/): step 36's model followed 2500 steps more
 #     (seed 5), a third follow leg of the held-block read-out's lineage; export, six seeds, where it carries the
 #     stack block, and the 40 chains.
-if [[ "${PHASE_THIRD:-0}" == 1 ]]; then
+if [[ "${PHASE_THIRD:-1}" == 1 ]]; then
   follow_with_chains heldall3 results/follow_seeds "$RUNS/heldall2_follow/final" 5
 fi
-# 40. Optional (FRESH_SEEDS=1, after steps 36, 38 and 39; results/follow_seeds/): the shipped model was chosen by its
-#     score on seeds 1000-1005, so its 107 there may be a high draw; the shipped model and steps 36, 38 and 39 on six
+# 40. Optional (FRESH_SEEDS=1, after steps 36, 38 and 39; results/follow_seeds/): step 29's model (shipped until step
+#     41) was chosen by its score on seeds 1000-1005, so its 107 there may be a high draw; it and steps 36, 38 and 39 on six
 #     seeds none of them was chosen on (1006-1011) -> results/follow_seeds/fresh_NAME_seedS.json.
 if [[ "${FRESH_SEEDS:-0}" == 1 ]]; then
   mkdir -p results/follow_seeds
@@ -718,21 +723,22 @@ if [[ "${FRESH_SEEDS:-0}" == 1 ]]; then
     EVAL_SEEDS="1006 1007 1008 1009 1010 1011" six_seeds "${pair#*=}" "results/follow_seeds/fresh_${pair%%=*}"
   done
 fi
-# 41. Optional (SOUP=1, after steps 36, 38 and 39; results/model_soup/): one follow's seed moves its score by up to
-#     0.08 (step 38); the uniform weight average (`soup`) of follows from one start averages that draw away at one
-#     model's cost. Steps 36 and 38 (siblings from step 34's model), and those two with step 39 (step 36 followed
-#     further); each on all twelve seeds 1000-1011 and the 40 chains.
-if [[ "${SOUP:-0}" == 1 ]]; then
-  mkdir -p results/model_soup
-  trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" --out "$RUNS/soup2" \
-      --drop-unused-llm-layers
-  trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" "$RUNS/heldall3_follow/final" \
-      --out "$RUNS/soup3" --drop-unused-llm-layers
-  for name in soup3 soup2; do
-    EVAL_SEEDS="1000 1001 1002 1003 1004 1005 1006 1007 1008 1009 1010 1011" six_seeds "$RUNS/$name" \
-        "results/model_soup/$name"
-  done
-  for name in soup3 soup2; do
-    forty_chains "$RUNS/$name" "results/model_soup/$name"
-  done
-fi
+# 41. The shipped checkpoint (results/model_soup/): one follow's seed moves its score by up to 0.08 (step 38), so
+#     models/trivla_cpu becomes the uniform weight average (`soup`) of the held-block read-out's three follows from
+#     one start: steps 36 and 38 (step 34's model, seeds 4 and 5) and step 39 (step 36's, seed 5). It replaces step
+#     29's model, which steps 30-40 used under that name. Twelve seeds (1000-1011), the 40 chains, every task after a
+#     one- and a two-task prelude; its own ablation arms (as step 29's, from it) with the tables and three more
+#     seeds of each arm; the tables with step 30's data-efficiency arm (a fresh System 1 on the same Systems 2 and 3)
+#     joined into results/report.md.
+mkdir -p results/model_soup
+trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" "$RUNS/heldall3_follow/final" \
+    --out models/trivla_cpu --drop-unused-llm-layers
+EVAL_SEEDS="1000 1001 1002 1003 1004 1005 1006 1007 1008 1009 1010 1011" six_seeds models/trivla_cpu \
+    results/model_soup/soup3
+forty_chains models/trivla_cpu results/model_soup/soup3
+ablation_arms models/trivla_cpu arm3 results/model_soup
+trivla-drake tables --full models/trivla_cpu --data10 "$RUNS/data10_export" --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --evaluations results/evaluations \
+    --out results/data_efficiency
+"${PYTHON:-python}" results/join_data_efficiency.py
+preludes models/trivla_cpu results/model_soup/soup3

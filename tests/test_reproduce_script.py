@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP": "1",
+           "FRESH_SEEDS": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -256,31 +256,42 @@ def test_the_reseeded_follow_is_step_36_with_another_seed_and_the_third_leg_goes
     assert _without(third, "--init", "--out") == _without(reseeded, "--init", "--out")
 
 
-def test_the_fresh_seeds_evaluate_the_shipped_model_and_the_held_lineage_on_seeds_none_was_chosen_on(calls):
-    """Step 40: seeds 1006-1011 for the shipped model and steps 36, 38 and 39, with the six-seed flags."""
+def test_the_fresh_seeds_evaluate_step_29s_model_and_the_held_lineage_on_seeds_none_was_chosen_on(calls):
+    """Step 40: seeds 1006-1011 for step 29's model (shipped until step 41's soup) and steps 36, 38 and 39, with the
+    six-seed flags."""
+    soup = next(i for i, argv in enumerate(calls) if argv[0] == "soup" and option(argv, "--out") == "models/trivla_cpu")
     for policy in ("models/trivla_cpu", "runs/heldall2_export", "runs/heldall2b_export", "runs/heldall3_export"):
-        fresh = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy
+        fresh = [argv for argv in calls[:soup] if argv[0] == "evaluate" and option(argv, "--policy") == policy
                  and int(option(argv, "--seed")) > 1005 and option(argv, "--chains") is None]
         assert sorted(option(argv, "--seed") for argv in fresh) == [str(seed) for seed in range(1006, 1012)]
         assert all(_without(argv, "--seed", "--policy") == _without(fresh[0], "--seed", "--policy") for argv in fresh)
         assert option(fresh[0], "--episodes") == "2" and "--prelude" not in fresh[0]
 
 
-def test_the_soups_average_the_held_lineages_follows_and_run_twelve_seeds_and_the_chains(calls):
-    """Step 41: the soup of steps 36 and 38 (one start, two seeds) and of those with step 39, from the follows'
-    final checkpoints, each evaluated as the six seeds are, on seeds 1000-1011, and on the 40 chains."""
-    soups = {option(argv, "--out"): argv[1:argv.index("--out")] for argv in calls if argv[0] == "soup"}
-    follows = {}
-    for name in ("heldall2", "heldall2b", "heldall3"):
-        assert run_writing(calls, f"runs/{name}_follow")[0] == "train"  # steps 36, 38 and 39's follow runs
-        follows[name] = f"runs/{name}_follow/final"
-    assert soups == {"runs/soup2": [follows["heldall2"], follows["heldall2b"]],
-                     "runs/soup3": [follows["heldall2"], follows["heldall2b"], follows["heldall3"]]}
+def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_with_its_own_arms_and_tables(calls):
+    """Step 41: models/trivla_cpu is last written by the soup of steps 36 and 38 (one start, two seeds) and step 39
+    (step 36 followed further), from the follows' final checkpoints; after it come its twelve seeds (with the six
+    seeds' flags), the 40 chains, its own ablation arms (trained from it) and the tables with them."""
+    writes = [i for i, argv in enumerate(calls) if option(argv, "--out") == "models/trivla_cpu"]
+    soup = calls[writes[-1]]
+    assert soup[0] == "soup" and calls[writes[0]][0] == "export"  # step 29's model until then
+    ingredients = soup[1:soup.index("--out")]
+    follows = [run_writing(calls, path.removesuffix("/final")) for path in ingredients]
+    assert [option(argv, "--out") for argv in follows] == ["runs/heldall2_follow", "runs/heldall2b_follow",
+                                                           "runs/heldall3_follow"]
+    assert option(follows[0], "--init") == option(follows[1], "--init") == "runs/heldall_follow/final"
+    assert option(follows[2], "--init") == "runs/heldall2_follow/final"
+    assert "--drop-unused-llm-layers" in soup
+    after = calls[writes[-1] + 1:]
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
-    for policy in soups:
-        runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy
-                and option(argv, "--chains") is None]
-        assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1012))
-        assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
-        assert _forty_chain_seeds(calls, policy) == ["1003", "1004"]
+    runs = [argv for argv in after if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
+            and option(argv, "--chains") is None and "--prelude" not in argv]
+    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1012))
+    assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+    assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
+    arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"]
+    assert sorted(option(argv, "--out") for argv in arms) == ["runs/arm3_s1", "runs/arm3_s13"]
+    tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
+    assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
+    assert option(tables[0], "--system1") == "runs/arm3_s1_export"
