@@ -24,6 +24,12 @@ import numpy as np
 SEEDS = tuple(range(1000, 1006))
 
 
+def first_file(prefix: str, suffix: str) -> tuple[Path | None, list[Path]]:
+    """The first existing PREFIX + suffix of the "+"-joined prefixes (None if there is none), and every candidate."""
+    candidates = [Path(f"{one}{suffix}") for one in prefix.split("+")]
+    return next((path for path in candidates if path.is_file()), None), candidates
+
+
 def load(prefix: str, seeds: tuple[int, ...] = SEEDS) -> tuple[dict[str, int], np.ndarray, set[tuple[int, str, int]]]:
     """Successes per task over the seeds, each seed's average success, and the failed episodes as (evaluation
     seed, task, episode seed)."""
@@ -31,8 +37,7 @@ def load(prefix: str, seeds: tuple[int, ...] = SEEDS) -> tuple[dict[str, int], n
     averages = []
     failed = set()
     for seed in seeds:
-        candidates = [Path(f"{one}_seed{seed}.json") for one in prefix.split("+")]
-        path = next((candidate for candidate in candidates if candidate.is_file()), None)
+        path, candidates = first_file(prefix, f"_seed{seed}.json")
         if path is None:
             raise SystemExit(f"{' or '.join(map(str, candidates))}: no such evaluation (expected one file per seed "
                              f"{seeds[0]}-{seeds[-1]})")
@@ -65,8 +70,7 @@ def load_chains(prefix: str) -> tuple[dict[tuple[int, int], int], int, int] | No
     stopped: dict[tuple[int, int], int] = {}
     count = 0
     for seed in CHAIN_SEEDS:
-        path = next((path for one in prefix.split("+") if (path := Path(f"{one}_chains20_seed{seed}.json")).is_file()),
-                    None)
+        path, _ = first_file(prefix, f"_chains20_seed{seed}.json")
         if path is None:
             return None
         chains = json.loads(path.read_text())["chains"]
