@@ -1,4 +1,5 @@
-"""Shared fixtures: the default scenario, and a closed-loop station with a settable target."""
+"""Shared fixtures: the default scenario, and a closed-loop station with a settable target; the number of test
+processes `-n auto` starts."""
 
 from __future__ import annotations
 
