@@ -742,16 +742,3 @@ trivla-drake tables --full models/trivla_cpu --data10 "$RUNS/data10_export" --ep
     --out results/data_efficiency
 "${PYTHON:-python}" results/join_data_efficiency.py
 preludes models/trivla_cpu results/model_soup/soup3
-# 42. Optional (SOUP_FOLLOW=1, after step 41; results/soup_follow/): the shipped soup followed 2500 steps more with the
-#     follows' command (seed 41), and the soup of the shipped model with that follow (an even average of the two);
-#     six seeds of each (the follow's checkpoint as trained, not exported). Not shipped.
-if [[ "${SOUP_FOLLOW:-0}" == 1 ]]; then
-  mkdir -p results/soup_follow
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/soupfollow_follow" --init models/trivla_cpu \
-      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 2500 --seed 41 --subgoal-offset \
-      --ema-decay 0.999
-  trivla-drake soup models/trivla_cpu "$RUNS/soupfollow_follow/final" --out "$RUNS/soupfollow_soup" \
-      --drop-unused-llm-layers
-  six_seeds "$RUNS/soupfollow_follow/final" results/soup_follow/follow
-  six_seeds "$RUNS/soupfollow_soup" results/soup_follow/soup
-fi

@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1",
+           "FRESH_SEEDS": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -282,8 +282,7 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert option(follows[0], "--init") == option(follows[1], "--init") == "runs/heldall_follow/final"
     assert option(follows[2], "--init") == "runs/heldall2_follow/final"
     assert "--drop-unused-llm-layers" in soup
-    step42 = next(i for i, argv in enumerate(calls) if option(argv, "--out") == "runs/soupfollow_follow")
-    after = calls[writes[-1] + 1:step42]
+    after = calls[writes[-1] + 1:]
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
     runs = [argv for argv in after if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
@@ -296,22 +295,3 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
     assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
     assert option(tables[0], "--system1") == "runs/arm3_s1_export"
-
-
-def test_the_soup_follow_follows_the_shipped_soup_with_the_follows_command_and_soups_the_two(calls):
-    """Step 42: the shipped soup followed with step 39's command (seed 41), the even soup of the shipped model and
-    that follow's final checkpoint, and six seeds of each with the six seeds' flags."""
-    soup_written = max(i for i, argv in enumerate(calls) if option(argv, "--out") == "models/trivla_cpu")
-    follow = run_writing(calls, "runs/soupfollow_follow")
-    assert calls.index(follow) > soup_written and option(follow, "--init") == "models/trivla_cpu"
-    assert option(follow, "--seed") == "41"
-    assert _without(follow, "--init", "--out", "--seed") == _without(run_writing(calls, "runs/heldall3_follow"),
-                                                                      "--init", "--out", "--seed")
-    soup = next(argv for argv in calls if argv[0] == "soup" and option(argv, "--out") == "runs/soupfollow_soup")
-    assert soup[1:soup.index("--out")] == ["models/trivla_cpu", "runs/soupfollow_follow/final"]
-    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
-               and option(argv, "--chains") is None)
-    for policy in ("runs/soupfollow_follow/final", "runs/soupfollow_soup"):
-        runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy]
-        assert sorted(option(argv, "--seed") for argv in runs) == [str(seed) for seed in range(1000, 1006)]
-        assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
