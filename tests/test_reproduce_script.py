@@ -271,7 +271,7 @@ def test_the_fresh_seeds_evaluate_step_29s_model_and_the_held_lineage_on_seeds_n
 def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_with_its_own_arms_and_tables(calls):
     """Step 41: models/trivla_cpu is last written by the soup of steps 36 and 38 (one start, two seeds) and step 39
     (step 36 followed further), from the follows' final checkpoints; after it come its twelve seeds (with the six
-    seeds' flags), the 40 chains, its own ablation arms (trained from it) and the tables with them."""
+    seeds' flags), the 40 chains, its own ablation arms (trained from it), the tables with them and its grasp probe."""
     writes = [i for i, argv in enumerate(calls) if option(argv, "--out") == "models/trivla_cpu"]
     soup = calls[writes[-1]]
     assert soup[0] == "soup" and calls[writes[0]][0] == "export"  # step 29's model until then
@@ -295,3 +295,5 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
     assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
     assert option(tables[0], "--system1") == "runs/arm3_s1_export"
+    probes = [argv for argv in after if argv[0] == "probe" and option(argv, "--checkpoint") == "models/trivla_cpu"]
+    assert [option(argv, "--grasp-episodes") for argv in probes] == ["6"]
