@@ -742,8 +742,9 @@ trivla-drake tables --full models/trivla_cpu --data10 "$RUNS/data10_export" --ep
     --out results/data_efficiency
 "${PYTHON:-python}" results/join_data_efficiency.py
 preludes models/trivla_cpu results/model_soup/soup3
-# Where the soup first closes the gripper in lift, stack and place in bowl, and where it carries the stack block
-# (session 37).
+# Session 37: six more seeds (1012-1017); where the soup first closes the gripper in lift, stack and place in
+# bowl; where it carries the stack block.
+EVAL_SEEDS="1012 1013 1014 1015 1016 1017" six_seeds models/trivla_cpu results/model_soup/soup3
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/model_soup/grasps_soup3.md
 "${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/model_soup/soup3_stack.json \
     > results/model_soup/soup3_stack.md

@@ -271,7 +271,8 @@ def test_the_fresh_seeds_evaluate_step_29s_model_and_the_held_lineage_on_seeds_n
 def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_with_its_own_arms_and_tables(calls):
     """Step 41: models/trivla_cpu is last written by the soup of steps 36 and 38 (one start, two seeds) and step 39
     (step 36 followed further), from the follows' final checkpoints; after it come its twelve seeds (with the six
-    seeds' flags), the 40 chains, its own ablation arms (trained from it), the tables with them and its grasp probe."""
+    seeds' flags; six more later), the 40 chains, its own ablation arms (trained from it), the tables with them
+    and its grasp probe."""
     writes = [i for i, argv in enumerate(calls) if option(argv, "--out") == "models/trivla_cpu"]
     soup = calls[writes[-1]]
     assert soup[0] == "soup" and calls[writes[0]][0] == "export"  # step 29's model until then
@@ -287,7 +288,7 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
                and option(argv, "--chains") is None)
     runs = [argv for argv in after if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
             and option(argv, "--chains") is None and "--prelude" not in argv]
-    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1012))
+    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))  # 1012-1017: session 37
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
     arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"]
