@@ -1,24 +1,13 @@
-"""Shared fixtures: the default scenario, and a closed-loop station with a settable target; the number of test
-processes `-n auto` starts."""
+"""Shared fixtures: the default scenario, and a closed-loop station with a settable target."""
 
 from __future__ import annotations
 
 import logging
-import os
 
 import numpy as np
 import pytest
 
 logging.getLogger("drake").setLevel(logging.ERROR)
-
-MAX_TEST_PROCESSES = 8
-
-
-def pytest_xdist_auto_num_workers(config):
-    """`-n auto` (pyproject.toml): one test process per usable core, at most MAX_TEST_PROCESSES, since
-    each loads its own torch and Drake."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, min(MAX_TEST_PROCESSES, cores))
 
 
 @pytest.fixture(scope="module", autouse=True)
