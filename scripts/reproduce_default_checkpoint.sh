@@ -748,3 +748,20 @@ EVAL_SEEDS="1012 1013 1014 1015 1016 1017" six_seeds models/trivla_cpu results/m
 trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 6 > results/model_soup/grasps_soup3.md
 "${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/model_soup/soup3_stack.json \
     > results/model_soup/soup3_stack.md
+# 42. Optional (SOUP_FOLLOW=1, after step 41; results/soup_follow/): the shipped soup followed 2500 steps with step
+#     36's command (seeds 41 and 42, from the same start); the soup of those two follows with the shipped soup, and
+#     of the two follows alone; eighteen seeds (1000-1017) of each soup.
+if [[ "${SOUP_FOLLOW:-0}" == 1 ]]; then
+  mkdir -p results/soup_follow
+  for seed in 41 42; do
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/soupfollow${seed}" --init models/trivla_cpu \
+        --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 2500 --seed "$seed" --subgoal-offset \
+        --ema-decay 0.999
+  done
+  trivla-drake soup models/trivla_cpu "$RUNS/soupfollow41/final" "$RUNS/soupfollow42/final" --out "$RUNS/soupSF" \
+      --drop-unused-llm-layers
+  trivla-drake soup "$RUNS/soupfollow41/final" "$RUNS/soupfollow42/final" --out "$RUNS/soupF" --drop-unused-llm-layers
+  EIGHTEEN=$(seq -s ' ' 1000 1017)
+  EVAL_SEEDS="$EIGHTEEN" six_seeds "$RUNS/soupSF" results/soup_follow/soupSF
+  EVAL_SEEDS="$EIGHTEEN" six_seeds "$RUNS/soupF" results/soup_follow/soupF
+fi

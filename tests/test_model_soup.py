@@ -70,6 +70,23 @@ def test_a_soup_of_one_model_twice_is_that_model(saved, tmp_path):
                                   model.predict_action_chunk(obs, seed=4))
 
 
+def test_an_export_in_float16_soups_with_the_float32_runs_followed_from_it(two_follows, tmp_path):
+    """The shipped model is an export (float16); a follow of it saves float32. The storage dtype is not the model."""
+    (a, _), _ = two_follows
+    exported = tmp_path / "exported"
+    save_checkpoint(a, str(exported), weights_dtype="float16")
+    assert json.loads((exported / "config.json").read_text())["weights_dtype"] == "float16"
+    start = load_checkpoint(str(exported))
+    follow = _nudged(start, "policy.", 5)  # its frozen systems are the export's, as loaded
+    save_checkpoint(follow, str(tmp_path / "follow"))
+    assert json.loads((tmp_path / "follow" / "config.json").read_text())["weights_dtype"] == "float32"
+    out = tmp_path / "soup"
+    assert main(["soup", str(exported), str(tmp_path / "follow"), "--out", str(out), "--dtype", "float32"]) == 0
+    started, followed = dict(start.named_parameters()), dict(follow.named_parameters())
+    for name, parameter in load_checkpoint(str(out)).named_parameters():
+        torch.testing.assert_close(parameter, (started[name] + followed[name]) / 2, rtol=0, atol=1e-6)
+
+
 def test_a_soup_refuses_models_whose_frozen_system_2_differs(saved, two_follows, tmp_path, capsys):
     model, _ = saved
     _, folders = two_follows

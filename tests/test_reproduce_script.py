@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -291,10 +291,30 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))  # 1012-1017: session 37
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
-    arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"]
+    arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"
+            and "soupfollow" not in option(argv, "--out")]  # step 42's follows start from it too
     assert sorted(option(argv, "--out") for argv in arms) == ["runs/arm3_s1", "runs/arm3_s13"]
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
     assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
     assert option(tables[0], "--system1") == "runs/arm3_s1_export"
     probes = [argv for argv in after if argv[0] == "probe" and option(argv, "--checkpoint") == "models/trivla_cpu"]
     assert [option(argv, "--grasp-episodes") for argv in probes] == ["6"]
+
+
+def test_the_soups_of_the_shipped_soups_follows_are_made_from_one_start_and_evaluated_on_eighteen_seeds(calls):
+    """Step 42: two follows of the shipped soup that differ only in their seed (41, 42), with step 36's command; the
+    soup of them with the shipped soup and of them alone; each soup on seeds 1000-1017 with the six seeds' flags."""
+    follows = [run_writing(calls, f"runs/soupfollow{seed}") for seed in (41, 42)]
+    assert option(follows[0], "--init") == option(follows[1], "--init") == "models/trivla_cpu"
+    assert _without(follows[0], "--out", "--seed") == _without(follows[1], "--out", "--seed")
+    step36 = run_writing(calls, "runs/heldall2_follow")
+    assert _without(follows[0], "--out", "--seed", "--init") == _without(step36, "--out", "--seed", "--init")
+    soups = {option(argv, "--out"): argv[1:argv.index("--out")] for argv in calls if argv[0] == "soup"}
+    finals = ["runs/soupfollow41/final", "runs/soupfollow42/final"]
+    assert soups["runs/soupSF"] == ["models/trivla_cpu", *finals] and soups["runs/soupF"] == finals
+    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
+               and option(argv, "--chains") is None)
+    for policy in ("runs/soupSF", "runs/soupF"):
+        runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy]
+        assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+        assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)

@@ -18,6 +18,8 @@ from pathlib import Path
 import torch
 
 FROZEN_PREFIXES = ("vision_language.", "dynamics.")  # Systems 2 and 3: frozen while System 1 trains
+# How the weights are stored, not what they are: an export (float16) soups with the float32 runs followed from it.
+STORAGE_ONLY_FIELDS = ("weights_dtype",)
 
 
 def soup_state_dict(models: list[torch.nn.Module], names: list[str] | None = None) -> dict[str, torch.Tensor]:
@@ -75,7 +77,8 @@ def soup_checkpoints(
     reference = _config_of(paths[0])
     for path in paths[1:]:
         config = _config_of(path)
-        differing = sorted(key for key in set(reference) | set(config) if reference.get(key) != config.get(key))
+        differing = sorted(key for key in set(reference) | set(config)
+                           if reference.get(key) != config.get(key) and key not in STORAGE_ONLY_FIELDS)
         if differing:
             raise ValueError(f"{path}'s config.json differs from {paths[0]}'s in {', '.join(differing)}: a soup "
                              "averages models of one config")
