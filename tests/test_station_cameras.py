@@ -77,3 +77,72 @@ def test_images_change_where_the_robot_moves(station_and_context):
     # The wrist camera rides on the hand: its whole view moves.
     wrist_change = np.abs(after["wrist_camera"][0].astype(int) - before["wrist_camera"][0].astype(int))
     assert (wrist_change.max(axis=2) > 30).mean() > 0.2
+
+
+def test_the_static_cameras_calibration_puts_each_block_in_the_cell_the_renderer_draws_it_in(station_and_context):
+    """station/cameras.camera_calibration + nn/camera_cells: the block's place projects onto its rendered
+    pixels, and the image cell the renderer draws it in is the one whose table place is nearest it."""
+    from trivla_drake.nn.camera_cells import cell_table_points, rotation_from_rpy
+    from trivla_drake.station.cameras import camera_calibration
+    from trivla_drake.station.scenario import load_scenario
+
+    cameras = load_scenario().cameras
+    calibration = camera_calibration(cameras["static_camera"], "static_camera")
+    with pytest.raises(ValueError, match="cameras.wrist_camera rides on"):
+        camera_calibration(cameras["wrist_camera"], "wrist_camera")
+    station, context = station_and_context
+    plant = station.GetSubsystemByName("plant")
+    plant_context = plant.GetMyContextFromRoot(context)
+    _, labels = _render(station, context, "static_camera")
+    places = cell_table_points(calibration, 8, 0.0225)
+    x, y, z, roll, pitch, yaw, fx, fy, cx, cy, _, _ = calibration
+    for color in ("red", "green", "blue"):
+        body = plant.GetBodyByName("block", plant.GetModelInstanceByName(f"block_{color}"))
+        position = plant.EvalBodyPoseInWorld(plant_context, body).translation()
+        rows, cols = np.nonzero(labels == int(body.index()))
+        in_camera = rotation_from_rpy(roll, pitch, yaw).T @ (position - np.array([x, y, z]))
+        projected = np.array([fx * in_camera[0] / in_camera[2] + cx, fy * in_camera[1] / in_camera[2] + cy])
+        assert np.abs(projected - [cols.mean(), rows.mean()]).max() < 1.5, color
+        drawn_in = int(rows.mean() // 28) * 8 + int(cols.mean() // 28)
+        assert np.argmin(np.linalg.norm(places[:, :2] - position[:2], axis=1)) == drawn_in, color
+
+
+def test_the_wrist_cameras_cells_are_placed_from_the_hands_pose_where_the_renderer_draws_the_blocks(station_and_context):
+    """station/cameras.hand_camera_calibration + nn/token_anchor.wrist_places: with the arm turned toward
+    the blocks, each block is drawn in the wrist view's cell whose table place (computed from the joint
+    angles alone) is nearest to it."""
+    import torch
+
+    from trivla_drake.nn.camera_cells import camera_pose, cell_rays
+    from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
+    from trivla_drake.nn.token_anchor import TokenAnchor
+    from trivla_drake.station.cameras import hand_camera_calibration
+    from trivla_drake.station.scenario import load_scenario
+
+    station, context = station_and_context
+    context = context.Clone()
+    plant = station.GetSubsystemByName("plant")
+    cameras = load_scenario().cameras
+    calibration = hand_camera_calibration(plant, cameras["wrist_camera"], "wrist_camera")
+    with pytest.raises(ValueError, match="cameras.static_camera rides on 'world'"):
+        hand_camera_calibration(plant, cameras["static_camera"], "static_camera")
+    rotation, origin = camera_pose(calibration)
+    anchor = TokenAnchor(8, torch.zeros(1, 3), wrist_rays=torch.from_numpy(cell_rays(calibration, 8)).float(),
+                         wrist_pose=(torch.from_numpy(rotation).float(), torch.from_numpy(origin).float()),
+                         plane_height=0.0225)
+    plant_context = plant.GetMyContextFromRoot(context)
+    panda = plant.GetModelInstanceByName("panda")
+    q = plant.GetPositions(plant_context, panda) + np.array([0.2, 0.3, 0.0, 0.2, 0.0, -0.2, 0.0, 0.0, 0.0])
+    plant.SetPositions(plant_context, panda, q)
+    _, labels = _render(station, context, "wrist_camera")
+    places, valid = anchor.wrist_places(PandaTcpFeatures()(torch.from_numpy(q[None, :7]).float()))
+    places = denormalize_position(places)[0].numpy()
+    assert valid.all()
+    for color in ("red", "green", "blue"):
+        body = plant.GetBodyByName("block", plant.GetModelInstanceByName(f"block_{color}"))
+        position = plant.EvalBodyPoseInWorld(plant_context, body).translation()
+        rows, cols = np.nonzero(labels == int(body.index()))
+        assert len(rows) > 100, color
+        drawn_in = int(rows.mean() // 28) * 8 + int(cols.mean() // 28)
+        distances = np.linalg.norm(places[:, :2] - position[:2], axis=1)
+        assert np.argmin(distances) == drawn_in and distances[drawn_in] < 0.05, color

@@ -141,6 +141,7 @@ def test_every_train_config_field_names_the_flag_that_sets_it():
         else:  # the flag exists, and is the field's (its dest is the field, or the field without a suffix / "no_")
             dest = dest_of[flag]
             assert dest in (field.name, field.name.removesuffix("_s"), field.name.removesuffix("_weighting"),
+                            field.name.removesuffix("_camera"),  # --grounding-anchor[-wrist]: a calibration
                             "no_" + field.name, "no_" + field.name.removeprefix("use_")), (field.name, flag, dest)
     saved = TrainConfig(stage="policy", data="d", out="o")
     with pytest.raises(ValueError, match=r"gripper_event_window_s \(--gripper-event-window\) was 1.0"):

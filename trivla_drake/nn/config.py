@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trivla_drake.action import ACTION_NAMES
+from trivla_drake.nn.camera_cells import check_calibration
 
 PANDA_STATE_NAMES: tuple[str, ...] = tuple(
     [f"panda_joint{i}_position" for i in range(1, 8)]
@@ -239,6 +240,18 @@ class PolicyConfig:
     # faces (results/grasp_yaw). Needs instruction_grounding and tcp_features; System 1 then needs the
     # robot state. Off in checkpoints saved before it existed; `train --subgoal-yaw` turns it on.
     subgoal_yaw: bool = False
+    # The instruction grounding anchors its sub-goal on the static camera's image cells (nn/token_anchor.py):
+    # each read-out's query weighs the places on the table those cells look at (from this calibration,
+    # the 12 numbers of nn/camera_cells.py; empty: no anchor). Needs instruction_grounding. Off in
+    # checkpoints saved before it existed; `train --stage policy --grounding-phase bind --grounding-anchor`
+    # turns it on with the scenario's static camera (station/cameras.py: camera_calibration).
+    grounding_anchor_camera: tuple[float, ...] = ()
+    # The anchor also weighs the wrist view's cells, each the place its ray meets the table from the hand's
+    # pose: near a grasp the arm hides the block from the static camera. The wrist camera's calibration in
+    # the tool-centre point's frame (12 numbers, nn/camera_cells.py; empty: static view only). Needs
+    # grounding_anchor_camera and tcp_features; the grounding then needs the robot state.
+    # `train ... --grounding-anchor --grounding-anchor-wrist` turns it on (station/cameras.py).
+    grounding_anchor_wrist_camera: tuple[float, ...] = ()
 
 
 @dataclass
@@ -333,6 +346,17 @@ def validate_config(config: TriVLAConfig) -> None:
     if pol.subgoal_yaw and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_yaw turns the grounding's yaw into a turn from the hand's yaw: it needs "
                          "policy.instruction_grounding and policy.tcp_features")
+    if pol.grounding_anchor_camera:
+        if not pol.instruction_grounding:
+            raise ValueError("policy.grounding_anchor_camera anchors the instruction grounding's sub-goal on a "
+                             "camera's image cells: it needs policy.instruction_grounding")
+        check_calibration(pol.grounding_anchor_camera, "policy.grounding_anchor_camera")
+    if pol.grounding_anchor_wrist_camera:
+        if not (pol.grounding_anchor_camera and pol.tcp_features):
+            raise ValueError("policy.grounding_anchor_wrist_camera places the wrist view's cells from the hand's "
+                             "pose in the grounding's anchor: it needs policy.grounding_anchor_camera and "
+                             "policy.tcp_features")
+        check_calibration(pol.grounding_anchor_wrist_camera, "policy.grounding_anchor_wrist_camera")
     if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "
                          "policy.instruction_grounding and policy.tcp_features")

@@ -18,6 +18,9 @@ With `reads_gripper`, a second read-out (its own queries, scores and sub-goal he
 block is held (nn/panda_gripper.py): "stack the red block on the blue one" names the red block before
 the grasp and the blue one after it. Taught both with one read-out, a grounding put the sub-goal between
 the two blocks before the grasp on unseen scenes (results/stack_carry, results/stack_phase).
+With `anchor_places`, each read-out's chosen query also picks cells of a fixed camera's image tokens, and
+the sub-goal is the places those cells look at (plus offsets) with the head's output added to it
+(nn/token_anchor.py): the "where" from the camera's geometry, not regressed from one vector.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from torch import nn
 
 from trivla_drake.nn.attention import MultiHeadAttention
 from trivla_drake.nn.panda_gripper import FEATURE_DIM as GRIPPER_FEATURE_DIM, holding_block
-from trivla_drake.nn.panda_tcp import normalize_position
+from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_DIM, normalize_position
+from trivla_drake.nn.token_anchor import TokenAnchor
 
 
 YAW_TOKEN_FEATURES = 4  # features per image token in the yaw read-out
@@ -44,7 +48,11 @@ class InstructionGrounding(nn.Module):
     among the others (it did: its sub-goal hardly changed with the colour word)."""
 
     def __init__(self, dim: int, num_heads: int, tcp_dim: int = 0, yaw_tokens: int = 0,
-                 reads_gripper: bool = False) -> None:
+                 reads_gripper: bool = False, anchor: TokenAnchor | None = None,
+                 anchor_start: int = 0, anchor_wrist_start: int = 0) -> None:
+        """`anchor`: the sub-goal's anchor on the image tokens (nn/token_anchor.py), reading the static view's
+        from index `anchor_start` and, when it has wrist rays, the wrist view's from `anchor_wrist_start`
+        (the tcp features are then required); None: the head's output is the sub-goal."""
         super().__init__()
         self.tcp_dim = tcp_dim
         # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
@@ -79,6 +87,11 @@ class InstructionGrounding(nn.Module):
         self.yaw_tokens = yaw_tokens
         self.yaw_project = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, YAW_TOKEN_FEATURES)) if yaw_tokens else None
         self.yaw_head = nn.Linear(yaw_tokens * YAW_TOKEN_FEATURES, 2) if yaw_tokens else None
+        self.anchor = anchor
+        self.anchor_start = anchor_start
+        self.anchor_wrist_start = anchor_wrist_start
+        # The tcp features are read by the sub-goal head (tcp_dim > 0) and/or by the wrist view's anchor.
+        self.reads_tcp = tcp_dim > 0 or (anchor is not None and anchor.wrist_cells > 0)
         self.goal = nn.Sequential(nn.Linear(dim + 3, dim), nn.SiLU(), nn.Linear(dim, dim))
         # The goal starts at zero, so a System 1 given this module starts as the one without it.
         nn.init.zeros_(self.goal[2].weight)
@@ -94,17 +107,17 @@ class InstructionGrounding(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each instruction token's query attends over the image tokens; their read-outs and queries
         are averaged with softmax weights of the tokens' scores (masked tokens get none). `tcp`
-        (B, tcp_dim): the tool-centre point's features, required when built with tcp_dim > 0 and
-        refused otherwise; `gripper` (B, 1): the gripper's closure (panda_gripper), likewise with
+        (B, 9): the tool-centre point's features, required when built with tcp_dim > 0 or a wrist
+        anchor and refused otherwise; `gripper` (B, 1): the gripper's closure (panda_gripper), likewise with
         `reads_gripper`. Returns the goal (B, D) for the DiT and the predicted sub-goal (B, 3) in
         feature units, followed with `yaw_tokens` by its (cos 4 psi, sin 4 psi) (B, 5 in all)."""
         batch = instruction.shape[0]
-        if self.tcp_skip is None and tcp is not None:
-            raise ValueError("tcp was given to an instruction grounding built without tcp_dim")
-        if self.tcp_skip is not None and (tcp is None or tuple(tcp.shape) != (batch, self.tcp_dim)):
+        if not self.reads_tcp and tcp is not None:
+            raise ValueError("tcp was given to an instruction grounding built without tcp_dim or a wrist anchor")
+        if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_DIM)):
             got = None if tcp is None else tuple(tcp.shape)
-            raise ValueError(f"tcp must be ({batch}, {self.tcp_dim}), the tool-centre point's features "
-                             f"(policy.grounding_reads_tcp); got {got}")
+            raise ValueError(f"tcp must be ({batch}, {TCP_DIM}), the tool-centre point's features "
+                             f"(policy.grounding_reads_tcp / grounding_anchor_wrist_camera); got {got}")
         if self.held is None and gripper is not None:
             raise ValueError("gripper was given to an instruction grounding built without reads_gripper")
         if self.held is not None and (gripper is None or tuple(gripper.shape) != (batch, GRIPPER_FEATURE_DIM)):
@@ -143,8 +156,15 @@ class InstructionGrounding(nn.Module):
         scores = score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
         weights = torch.softmax(scores, dim=-1).nan_to_num(0.0).unsqueeze(-1)  # an all-masked row: zeros
         read = self.norm((weights * reads).sum(1))
-        head_input = [read, (weights * queries).sum(1)] + ([tcp] if tcp is not None else [])
-        return read, subgoal_head(torch.cat(head_input, dim=-1))
+        chosen = (weights * queries).sum(1)
+        head_input = [read, chosen] + ([tcp] if self.tcp_skip is not None else [])
+        subgoal = subgoal_head(torch.cat(head_input, dim=-1))
+        if self.anchor is not None:
+            cells = image_tokens[:, self.anchor_start:self.anchor_start + self.anchor.places.shape[0]]
+            wrist = (image_tokens[:, self.anchor_wrist_start:self.anchor_wrist_start + self.anchor.wrist_cells]
+                     if self.anchor.wrist_cells else None)
+            subgoal = subgoal + self.anchor(chosen, cells, wrist, tcp if self.anchor.wrist_cells else None)[0]
+        return read, subgoal
 
     def start_held_from_open(self) -> None:
         """The held-block read-out set to a copy of the other one (a bind run that adds it starts here:

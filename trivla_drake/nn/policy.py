@@ -11,13 +11,19 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn import flow_matching
+from trivla_drake.nn.camera_cells import camera_pose, cell_rays, cell_table_points
 from trivla_drake.nn.config import PolicyConfig
 from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
 from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_FEATURE_DIM
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
 from trivla_drake.nn.instruction_grounding import InstructionGrounding
+from trivla_drake.nn.token_anchor import TokenAnchor
 from trivla_drake.nn.video_former import VideoFormer
+
+# The plane the grounding's anchor places lie on: a resting block's centre (4.5 cm cubes), where the hand
+# closes on it [m].
+ANCHOR_PLANE_HEIGHT = 0.0225
 
 
 def check_noise_scale(scale: float, field: str = "noise_scale") -> float:
@@ -106,9 +112,11 @@ class FlowMatchingPolicy(nn.Module):
         vl_dim: int | None,
         dynamics_feature_shape: tuple[int, int, int, int] | None,
         vl_fixed_positions: int = 0,
+        vl_view_spans: tuple[tuple[int, int], ...] = (),
     ) -> None:
         """`vl_fixed_positions`: how many leading Q_vl tokens (prompt head and image tokens) are the same
-        kind in every prompt, so each gets its own standardisation statistics."""
+        kind in every prompt, so each gets its own standardisation statistics. `vl_view_spans`: (first
+        index, count) of each view's image tokens in Q_vl, static then wrist (the grounding's anchor reads them)."""
         super().__init__()
         self.config = config
         # Standard deviation of the noise sampling starts from (flow-matching "temperature"): 1 samples
@@ -136,6 +144,7 @@ class FlowMatchingPolicy(nn.Module):
                 if config.vl_position_embedding and vl_fixed_positions > 0 else None
             )
             self.vl_fixed_positions = vl_fixed_positions
+        self.vl_view_spans = tuple(vl_view_spans)
         self.grounding = None
         if config.instruction_grounding:
             if not (self.uses_vl and vl_fixed_positions > 0):
@@ -243,20 +252,46 @@ class FlowMatchingPolicy(nn.Module):
 
     @property
     def reads_tcp(self) -> bool:
-        """Whether conditions() needs the tcp features (`subgoal_offset`, `subgoal_yaw` or
-        `grounding_reads_tcp`)."""
-        return self.subgoal_offset is not None or self.subgoal_yaw is not None or self.config.grounding_reads_tcp
+        """Whether conditions() needs the tcp features (`subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp`
+        or `grounding_anchor_wrist_camera`)."""
+        return self.subgoal_offset is not None or self.subgoal_yaw is not None or self.grounding_reads_tcp
+
+    @property
+    def grounding_reads_tcp(self) -> bool:
+        """Whether the instruction grounding reads the tcp features (`grounding_reads_tcp`, or a wrist anchor)."""
+        return self.grounding is not None and self.grounding.reads_tcp
 
     def _new_grounding(self) -> InstructionGrounding:
         c = self.config
         return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0,
                                     yaw_tokens=self.vl_fixed_positions if c.subgoal_yaw else 0,
-                                    reads_gripper=c.grounding_reads_gripper)
+                                    reads_gripper=c.grounding_reads_gripper, **self._anchor_arguments())
+
+    def _anchor_arguments(self) -> dict:
+        """The grounding's anchor (nn/token_anchor.py) on the static view's token cells (`grounding_anchor_camera`)
+        and, with `grounding_anchor_wrist_camera`, the wrist view's, on the plane of a resting block's centre,
+        and where those tokens start in the fixed tokens."""
+        c = self.config
+        if not c.grounding_anchor_camera:
+            return {}
+        (start, count), (wrist_start, _) = self.vl_view_spans or ((0, 0), (0, 0))
+        grid = math.isqrt(count)
+        if count == 0 or grid * grid != count:
+            raise ValueError(f"policy.grounding_anchor_camera anchors on a square grid of static-view image tokens; "
+                             f"this System 2 gives {count}")
+        places = torch.from_numpy(cell_table_points(c.grounding_anchor_camera, grid, ANCHOR_PLANE_HEIGHT)).float()
+        wrist = {}
+        if c.grounding_anchor_wrist_camera:
+            rotation, origin = camera_pose(c.grounding_anchor_wrist_camera)
+            wrist = {"wrist_rays": torch.from_numpy(cell_rays(c.grounding_anchor_wrist_camera, grid)).float(),
+                     "wrist_pose": (torch.from_numpy(rotation).float(), torch.from_numpy(origin).float())}
+        anchor = TokenAnchor(c.hidden_size, places, plane_height=ANCHOR_PLANE_HEIGHT, **wrist)
+        return {"anchor": anchor, "anchor_start": start, "anchor_wrist_start": wrist_start}
 
     def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None,
                 gripper: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         fixed = self.vl_fixed_positions
-        tcp = tcp if self.config.grounding_reads_tcp else None
+        tcp = tcp if self.grounding.reads_tcp else None
         return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], tcp, gripper)
 
     def reset_grounding(self) -> None:

@@ -110,6 +110,8 @@ class TriVLA(nn.Module):
             vl_dim=self.vision_language.hidden_size if self.vision_language else None,
             dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
             vl_fixed_positions=self.vision_language.instruction_offset(2) if self.vision_language else 0,
+            vl_view_spans=(self.vision_language.image_token_span(0), self.vision_language.image_token_span(1))
+            if self.vision_language else (),
         )
 
     def reset_system1(self, seed: int) -> None:
@@ -366,16 +368,16 @@ class TriVLA(nn.Module):
         if self.policy.grounding is None:
             raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
         pol = self.config.policy
-        if state is None and pol.grounding_reads_tcp:
+        if state is None and self.policy.grounding_reads_tcp:
             raise ValueError("state is required: this model's grounding reads the tool-centre point "
-                             "(policy.grounding_reads_tcp)")
+                             "(policy.grounding_reads_tcp / grounding_anchor_wrist_camera)")
         if state is None and pol.grounding_reads_gripper:
             raise ValueError("state is required: this model's grounding reads the gripper's closure "
                              "(policy.grounding_reads_gripper)")
         state = check_state("state", np.zeros(pol.state_dim) if state is None else state, pol.state_dim)
         q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
         state_row = torch.from_numpy(state)[None].to(self.device)
-        tcp = self.tcp_features(state_row).float() if pol.grounding_reads_tcp else None
+        tcp = self.tcp_features(state_row).float() if self.policy.grounding_reads_tcp else None
         subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
                                               tcp=tcp, gripper=self._gripper_for_grounding(state_row))
         return subgoal[0].double().cpu()
@@ -597,11 +599,12 @@ class TriVLA(nn.Module):
             q_vl, q_vl_mask = self._batch_q_vl(batch)
         tcp = gripper = None
         pol = self.config.policy
-        for reads, field, what in ((pol.grounding_reads_tcp, "grounding_reads_tcp", "the tool-centre point"),
+        for reads, field, what in ((self.policy.grounding_reads_tcp,
+                                    "grounding_reads_tcp / grounding_anchor_wrist_camera", "the tool-centre point"),
                                    (pol.grounding_reads_gripper, "grounding_reads_gripper", "the gripper's closure")):
             if reads and "state" not in batch:
                 raise ValueError(f"batch is missing 'state': this grounding reads {what} (policy.{field})")
-        if pol.grounding_reads_tcp:
+        if self.policy.grounding_reads_tcp:
             tcp = self.tcp_features(self._batch_tensor(batch, "state")).to(q_vl.dtype)
         if pol.grounding_reads_gripper:
             gripper = self._gripper_for_grounding(self._batch_tensor(batch, "state")).to(q_vl.dtype)

@@ -150,6 +150,12 @@ class VisionLanguageModule(nn.Module):
         head = sum(len(p) for p in pieces[:-1]) + num_views * self.num_image_tokens
         return head + len(self.tokenizer.encode(PROMPT_AFTER_IMAGES))
 
+    def image_token_span(self, view: int) -> tuple[int, int]:
+        """(first index, count) of image `view`'s tokens in Q_vl (0: static, 1: wrist, as the prompt
+        lays them out)."""
+        pieces = build_chat_prompt(self.tokenizer, [], view + 1).text_pieces
+        return sum(len(p) for p in pieces[:-1]) + view * self.num_image_tokens, self.num_image_tokens
+
     def drop_layers_above_readout(self) -> None:
         """Removes the LLM decoder layers above `select_layer`, which computing Q_vl never runs (GR00T
         builds its LLM this way), and records it in the config, so a saved checkpoint rebuilds the

@@ -31,6 +31,21 @@ def _user_errors():
     return (ValueError, NotADatasetError, FileNotFoundError, FloatingPointError)
 
 
+def default_camera_calibration(name: str) -> tuple[float, ...]:
+    """The default scenario's camera `name` as the 12 numbers of nn/camera_cells.py: the static camera in
+    the world (`--grounding-anchor`), the wrist camera in the tool-centre point's frame
+    (`--grounding-anchor-wrist`)."""
+    from trivla_drake.station.cameras import camera_calibration, hand_camera_calibration
+    from trivla_drake.station.scenario import load_scenario
+    from trivla_drake.station.station import make_station
+
+    scenario = load_scenario()
+    camera = scenario.cameras[name]
+    if camera.X_PB.base_frame in (None, "world"):
+        return tuple(camera_calibration(camera, name))
+    return tuple(hand_camera_calibration(make_station(scenario).GetSubsystemByName("plant"), camera, name))
+
+
 def config_from_args(args: argparse.Namespace):
     """The TrainConfig the command line asks for."""
 
@@ -78,6 +93,9 @@ def config_from_args(args: argparse.Namespace):
         fresh_system1=args.fresh_system1,
         grounding_reads_tcp=args.grounding_reads_tcp,
         grounding_reads_gripper=args.grounding_reads_gripper,
+        grounding_anchor_camera=default_camera_calibration("static_camera") if args.grounding_anchor else (),
+        grounding_anchor_wrist_camera=(default_camera_calibration("wrist_camera") if args.grounding_anchor_wrist
+                                       else ()),
         bind_held_only=args.bind_held_only,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
@@ -223,6 +241,14 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "gripper is closed and answers with a second read-out while a block is held, so an "
                              "instruction can name one block before the grasp and another after it (use with "
                              "--grounding-carry; added as a copy of the read-out when --init's grounding has none)")
+    parser.add_argument("--grounding-anchor", action="store_true",
+                        help="policy, with --grounding-weight: anchor the instruction grounding's sub-goal on the "
+                             "static camera's image cells, each the place on the table it looks at (the default "
+                             "scenario's calibration; added, with fresh weights, when --init's grounding has none)")
+    parser.add_argument("--grounding-anchor-wrist", action="store_true",
+                        help="with --grounding-anchor: the anchor also weighs the wrist view's cells, each the place "
+                             "its ray meets the table from the hand's pose (near a grasp the arm hides the block "
+                             "from the static camera)")
     parser.add_argument("--bind-held-only", action="store_true",
                         help="bind, with --keep-grounding --grounding-reads-gripper: train only the held-block "
                              "read-out, so the answers with no block held stay --init's exactly")

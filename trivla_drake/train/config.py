@@ -15,6 +15,7 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
+from trivla_drake.nn.camera_cells import check_calibration
 from trivla_drake.nn.config import check_vlm_loss_weighting
 
 STAGES = ("video", "vlm", "policy")
@@ -45,6 +46,8 @@ FLAGS_NAMED_OTHERWISE = {
     "vlm_loss_weighting": "--vlm-loss",
     "progress": "--no-progress",
     "grounding_carry_tasks": "--grounding-carry",
+    "grounding_anchor_camera": "--grounding-anchor",
+    "grounding_anchor_wrist_camera": "--grounding-anchor-wrist",
 }
 # Fields that no `train` flag sets (their defaults, or a preset's).
 FIELDS_WITHOUT_FLAG = frozenset(
@@ -216,6 +219,13 @@ class TrainConfig:
     # quarter turn, and System 1 reads it (`PolicyConfig.subgoal_yaw`). A bind run from a checkpoint
     # without it adds a fresh yaw head; a follow run needs a grounding bound with it.
     subgoal_yaw: bool = False
+    # policy stage, with a grounding: anchor its sub-goal on a fixed camera's image cells
+    # (`PolicyConfig.grounding_anchor_camera`, the 12 numbers of nn/camera_cells.py; `--grounding-anchor`
+    # gives the default scenario's static camera). A bind run from a checkpoint without it adds it.
+    grounding_anchor_camera: tuple[float, ...] = ()
+    # ... and on the wrist camera's cells too, placed from the hand's pose (`PolicyConfig.grounding_anchor_wrist_camera`:
+    # its calibration in the tool-centre point's frame; `--grounding-anchor-wrist`).
+    grounding_anchor_wrist_camera: tuple[float, ...] = ()
     # Checkpoints hold an exponential moving average of the trained weights with this decay (about the
     # last 1/(1 - decay) steps; train/weight_average.py); the trained weights themselves stay in the
     # training state for resuming (`export --trained-weights` writes them). 0: the last step's weights.
@@ -353,6 +363,18 @@ class TrainConfig:
             raise ValueError("subgoal_yaw (--subgoal-yaw) has System 1's instruction grounding predict the grasp's "
                              "yaw: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and the tcp "
                              "features (drop --no-tcp-features)")
+        if self.grounding_anchor_camera:
+            if not (self.stage == "policy" and self.grounding_weight > 0):
+                raise ValueError("grounding_anchor_camera (--grounding-anchor) anchors System 1's instruction "
+                                 "grounding on a camera's image cells: it needs the policy stage and grounding_weight "
+                                 "(--grounding-weight) > 0")
+            check_calibration(self.grounding_anchor_camera, "grounding_anchor_camera")
+        if self.grounding_anchor_wrist_camera:
+            if not (self.grounding_anchor_camera and self.tcp_features):
+                raise ValueError("grounding_anchor_wrist_camera (--grounding-anchor-wrist) adds the wrist view's cells "
+                                 "to the grounding's anchor: it needs --grounding-anchor and the tcp features (drop "
+                                 "--no-tcp-features)")
+            check_calibration(self.grounding_anchor_wrist_camera, "grounding_anchor_wrist_camera")
         if not self.dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
         if self.dense_subcells is not None and self.dense_subcells < 1:
@@ -382,6 +404,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         # A saved config (JSON) gives a list: as a tuple it compares equal to the flag's on --resume.
         self.grounding_carry_tasks = tuple(self.grounding_carry_tasks)
+        self.grounding_anchor_camera = tuple(float(v) for v in self.grounding_anchor_camera)
+        self.grounding_anchor_wrist_camera = tuple(float(v) for v in self.grounding_anchor_wrist_camera)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""

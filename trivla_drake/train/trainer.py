@@ -64,6 +64,8 @@ def apply_ablations(
     subgoal_yaw: bool = False,
     dense_subcells: int | None = None,
     grounding_reads_gripper: bool = False,
+    grounding_anchor_camera: tuple[float, ...] = (),
+    grounding_anchor_wrist_camera: tuple[float, ...] = (),
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), rebuilt when anything changes (keeping every weight that still fits), with:
@@ -77,7 +79,11 @@ def apply_ablations(
       and tcp path fresh) where it reads none;
     - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none;
     - `grounding_reads_gripper`: a grounding with a held-block read-out (a copy of its read-out) where it
-      has none.
+      has none;
+    - `grounding_anchor_camera` (a calibration, nn/camera_cells.py): a grounding anchored on that camera's
+      image cells (a fresh anchor) where it has no anchor; one that has keeps its own;
+    - `grounding_anchor_wrist_camera` (the wrist camera's, in the tcp frame): the anchor also on the wrist
+      view's cells where it has none (its static places and weights kept).
     A system missing from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -96,19 +102,24 @@ def apply_ablations(
     reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
     yaw = grounding and tcp and (cfg.policy.subgoal_yaw or subgoal_yaw)
     reads_gripper = grounding and (cfg.policy.grounding_reads_gripper or grounding_reads_gripper)
+    anchor = tuple(cfg.policy.grounding_anchor_camera or grounding_anchor_camera) if grounding else ()
+    wrist_anchor = (tuple(cfg.policy.grounding_anchor_wrist_camera or grounding_anchor_wrist_camera)
+                    if anchor and tcp else ())
     if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
             cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
             cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp,
-            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells, cfg.policy.grounding_reads_gripper) == (
+            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells, cfg.policy.grounding_reads_gripper,
+            tuple(cfg.policy.grounding_anchor_camera), tuple(cfg.policy.grounding_anchor_wrist_camera)) == (
             use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw, subcells,
-            reads_gripper):
+            reads_gripper, anchor, wrist_anchor):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
                                    instruction_grounding=grounding, subgoal_offset=offset,
                                    grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw,
-                                   grounding_reads_gripper=reads_gripper),
+                                   grounding_reads_gripper=reads_gripper, grounding_anchor_camera=anchor,
+                                   grounding_anchor_wrist_camera=wrist_anchor),
         vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes,
                                             dense_subcells=subcells),
     )
@@ -190,6 +201,8 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
                                         subgoal_offset=config.subgoal_offset,
                                         grounding_reads_tcp=config.grounding_reads_tcp,
                                         grounding_reads_gripper=config.grounding_reads_gripper,
+                                        grounding_anchor_camera=config.grounding_anchor_camera,
+                                        grounding_anchor_wrist_camera=config.grounding_anchor_wrist_camera,
                                         subgoal_yaw=config.subgoal_yaw),
         vision_language=dataclasses.replace(
             vision_language, image_token_norm=config.image_token_norm,
@@ -224,6 +237,12 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
             raise ValueError(f"grounding_reads_gripper (--grounding-reads-gripper) changes the instruction grounding, "
                              f"which a follow run keeps as its {where} has it (reading no gripper): bind one with "
                              f"--grounding-reads-gripper first")
+        for field, flag in (("grounding_anchor_camera", "--grounding-anchor"),
+                            ("grounding_anchor_wrist_camera", "--grounding-anchor-wrist")):
+            if (config.grounding_phase == "follow" and getattr(config, field)
+                    and not getattr(model.config.policy, field)):
+                raise ValueError(f"{field} ({flag}) changes the instruction grounding's anchor, which a follow run "
+                                 f"keeps as its {where} has it: bind one with {flag} first")
         if config.keep_grounding and model.policy.grounding is None:
             raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
                              f"which has none: bind one without --keep-grounding first")
@@ -231,7 +250,8 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
                                 config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
                                 config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp,
                                 config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None,
-                                config.grounding_reads_gripper)
+                                config.grounding_reads_gripper, config.grounding_anchor_camera,
+                                config.grounding_anchor_wrist_camera)
         if config.system2_from is not None:
             model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
         if config.fresh_system1:
