@@ -765,3 +765,28 @@ if [[ "${SOUP_FOLLOW:-0}" == 1 ]]; then
   EVAL_SEEDS="$EIGHTEEN" six_seeds "$RUNS/soupSF" results/soup_follow/soupSF
   EVAL_SEEDS="$EIGHTEEN" six_seeds "$RUNS/soupF" results/soup_follow/soupF
 fi
+# 43. Optional (ANCHOR=1, after step 41; results/grounding_anchor/): the shipped model's grounding bound again
+#     (--keep-grounding, 1500 steps, step 29's bind settings with step 36's carrying tasks) with its sub-goal
+#     anchored on the static camera's image cells, and once more on both cameras' (--grounding-anchor-wrist);
+#     each checked on 20 scenes next to the shipped model; the wrist-anchored one followed 2500 steps with step
+#     36's command (seed 43), exported, eighteen seeds (1000-1017).
+if [[ "${ANCHOR:-0}" == 1 ]]; then
+  mkdir -p results/grounding_anchor
+  ANCHOR_BIND=(--grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --lr 1e-3 --warmup-steps 1
+               --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1500 --batch-size 64 --subgoal-offset)
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/anchor_bind" --init models/trivla_cpu \
+      "${ANCHOR_BIND[@]}" --grounding-anchor
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/anchor_wrist_bind" --init models/trivla_cpu \
+      "${ANCHOR_BIND[@]}" --grounding-anchor --grounding-anchor-wrist
+  for checkpoint in models/trivla_cpu "$RUNS/anchor_bind/final" "$RUNS/anchor_wrist_bind/final"; do
+    name=$(basename "$(dirname "$checkpoint")")
+    [[ "$checkpoint" == models/trivla_cpu ]] && name=shipped
+    trivla-drake probe --checkpoint "$checkpoint" --grounding-scenes 20 --threads 2 \
+        > "results/grounding_anchor/grounding_check_$name.md"
+  done
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/anchor_wrist_follow" \
+      --init "$RUNS/anchor_wrist_bind/final" --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 \
+      --steps 2500 --seed 43 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/anchor_wrist_follow/final" --out "$RUNS/anchor_wrist_export" --drop-unused-llm-layers
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/anchor_wrist_export" results/grounding_anchor/wrist
+fi

@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -292,12 +292,14 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
     arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"
-            and "soupfollow" not in option(argv, "--out")]  # step 42's follows start from it too
+            and "soupfollow" not in option(argv, "--out")  # step 42's follows start from it too
+            and "anchor" not in option(argv, "--out")]  # and step 43's binds
     assert sorted(option(argv, "--out") for argv in arms) == ["runs/arm3_s1", "runs/arm3_s13"]
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
     assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
     assert option(tables[0], "--system1") == "runs/arm3_s1_export"
-    probes = [argv for argv in after if argv[0] == "probe" and option(argv, "--checkpoint") == "models/trivla_cpu"]
+    probes = [argv for argv in after if argv[0] == "probe" and option(argv, "--checkpoint") == "models/trivla_cpu"
+              and "--grounding-scenes" not in argv]  # step 43 checks the shipped grounding next to its anchored ones
     assert [option(argv, "--grasp-episodes") for argv in probes] == ["6"]
 
 
@@ -318,3 +320,30 @@ def test_the_soups_of_the_shipped_soups_follows_are_made_from_one_start_and_eval
         runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == policy]
         assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
         assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+
+
+def test_the_anchored_groundings_are_bound_on_the_shipped_model_checked_and_the_wrist_one_followed(calls):
+    """Step 43: two binds of the shipped model's grounding that differ only in the anchor's cameras, each
+    checked with the shipped model on the same scenes; the wrist-anchored one followed with step 36's command
+    and evaluated on seeds 1000-1017 with the six seeds' flags."""
+    static, wrist = run_writing(calls, "runs/anchor_bind"), run_writing(calls, "runs/anchor_wrist_bind")
+    assert option(static, "--init") == option(wrist, "--init") == "models/trivla_cpu"
+    assert "--grounding-anchor" in static and "--grounding-anchor-wrist" not in static
+    assert _without(wrist, "--out") == _without(static, "--out") + ["--grounding-anchor-wrist"]
+    assert option(static, "--grounding-phase") == "bind" and "--keep-grounding" in static
+    assert option(static, "--grounding-carry") == option(run_writing(calls, "runs/heldall2_follow"), "--grounding-carry")
+    probes = {option(argv, "--checkpoint"): argv for argv in calls if argv[0] == "probe"
+              and option(argv, "--grounding-scenes") == "20"}
+    checked = ["models/trivla_cpu", "runs/anchor_bind/final", "runs/anchor_wrist_bind/final"]
+    assert set(checked) <= set(probes)
+    assert len({tuple(_without(probes[c], "--checkpoint")) for c in checked}) == 1
+    follow = run_writing(calls, "runs/anchor_wrist_follow")
+    assert option(follow, "--init") == "runs/anchor_wrist_bind/final" and option(follow, "--seed") == "43"
+    step36 = run_writing(calls, "runs/heldall2_follow")
+    assert _without(follow, "--out", "--seed", "--init") == _without(step36, "--out", "--seed", "--init")
+    assert "--drop-unused-llm-layers" in run_writing(calls, "runs/anchor_wrist_export")
+    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
+               and option(argv, "--chains") is None)
+    runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/anchor_wrist_export"]
+    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+    assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
