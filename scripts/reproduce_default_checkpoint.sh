@@ -784,9 +784,13 @@ if [[ "${ANCHOR:-0}" == 1 ]]; then
     trivla-drake probe --checkpoint "$checkpoint" --grounding-scenes 20 --threads 2 \
         > "results/grounding_anchor/grounding_check_$name.md"
   done
+  "${PYTHON:-python}" results/grounding_anchor/plot_checks.py
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/anchor_wrist_follow" \
       --init "$RUNS/anchor_wrist_bind/final" --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 \
       --steps 2500 --seed 43 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/anchor_wrist_follow/final" --out "$RUNS/anchor_wrist_export" --drop-unused-llm-layers
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/anchor_wrist_export" results/grounding_anchor/wrist
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_anchor/compare.png \
+      shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF wrist_anchor=results/grounding_anchor/wrist \
+      > results/grounding_anchor/compare.md
 fi

@@ -18,7 +18,7 @@ With `reads_gripper`, a second read-out (its own queries, scores and sub-goal he
 block is held (nn/panda_gripper.py): "stack the red block on the blue one" names the red block before
 the grasp and the blue one after it. Taught both with one read-out, a grounding put the sub-goal between
 the two blocks before the grasp on unseen scenes (results/stack_carry, results/stack_phase).
-With `anchor_places`, each read-out's chosen query also picks cells of a fixed camera's image tokens, and
+With `anchor`, each read-out's chosen query also picks cells of the cameras' image tokens, and
 the sub-goal is the places those cells look at (plus offsets) with the head's output added to it
 (nn/token_anchor.py): the "where" from the camera's geometry, not regressed from one vector.
 """
