@@ -769,7 +769,8 @@ fi
 #     (--keep-grounding, 1500 steps, step 29's bind settings with step 36's carrying tasks) with its sub-goal
 #     anchored on the static camera's image cells, and once more on both cameras' (--grounding-anchor-wrist);
 #     each checked on 20 scenes next to the shipped model; the wrist-anchored one followed 2500 steps with step
-#     36's command (seed 43), exported, eighteen seeds (1000-1017).
+#     36's command (seed 43), exported, eighteen seeds (1000-1017); its grasps and the shipped model's probed on
+#     36 scenes (probe --grasp-episodes 12).
 if [[ "${ANCHOR:-0}" == 1 ]]; then
   mkdir -p results/grounding_anchor
   ANCHOR_BIND=(--grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --lr 1e-3 --warmup-steps 1
@@ -790,6 +791,10 @@ if [[ "${ANCHOR:-0}" == 1 ]]; then
       --steps 2500 --seed 43 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/anchor_wrist_follow/final" --out "$RUNS/anchor_wrist_export" --drop-unused-llm-layers
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/anchor_wrist_export" results/grounding_anchor/wrist
+  trivla-drake probe --checkpoint "$RUNS/anchor_wrist_export" --grasp-episodes 12 --threads 1 \
+      > results/grounding_anchor/grasps_wrist.md
+  trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 12 --threads 1 \
+      > results/grounding_anchor/grasps_shipped.md
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_anchor/compare.png \
       shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF wrist_anchor=results/grounding_anchor/wrist \
       > results/grounding_anchor/compare.md

@@ -52,15 +52,27 @@ def test_each_cells_place_projects_back_to_its_cells_centre():
     (STATIC_CAMERA[:11], "must have 12 numbers"),
     (STATIC_CAMERA[:6] + (0.0,) + STATIC_CAMERA[7:], "fx must be positive"),
     (STATIC_CAMERA[:10] + (float("nan"), 224.0), "finite"),
+    (STATIC_CAMERA[:10] + (True, 224.0), "finite numbers"),
+    (3.0, "must be 12 numbers"),
+    ((0.4, 0.0, 0.01) + STATIC_CAMERA[3:], "does not look down"),  # below the blocks' plane
+    (STATIC_CAMERA[:3] + (0.0,) + STATIC_CAMERA[4:], "does not look down"),  # roll 0: it looks straight up
+    (STATIC_CAMERA[:3] + (-math.pi / 2,) + STATIC_CAMERA[4:], "does not look down"),  # level: half sees the sky
 ])
-def test_bad_calibrations_are_refused_naming_the_field(calibration, message):
-    with pytest.raises(ValueError, match=f"policy.grounding_anchor_camera.*{message}|{message}"):
-        check_calibration(calibration, "policy.grounding_anchor_camera")
-    with pytest.raises(ValueError, match="policy.grounding_anchor_camera"):
+def test_bad_calibrations_are_refused_naming_the_field(tmp_path, calibration, message):
+    with pytest.raises(ValueError, match=f"policy.grounding_anchor_camera.*{message}"):
         _config(calibration)
-    looking_up = (0.4, 0.0, 0.01) + STATIC_CAMERA[3:]
-    with pytest.raises(ValueError, match="does not look down"):
-        cell_table_points(looking_up, 8, 0.0225)
+    train = {"stage": "policy", "data": str(tmp_path), "out": str(tmp_path / "o"), "grounding_weight": 1.0}
+    with pytest.raises(ValueError, match=f"^grounding_anchor_camera.*{message}"):
+        TrainConfig(**train, grounding_anchor_camera=calibration).resolved().validate()
+
+
+def test_a_camera_that_sees_the_table_only_in_part_is_refused_by_the_geometry_too():
+    level = STATIC_CAMERA[:3] + (-math.pi / 2,) + STATIC_CAMERA[4:]  # its image's lower half sees the table
+    with pytest.raises(ValueError, match="^static: .*does not look down"):
+        cell_table_points(level, 8, 0.0225, "static")
+    with pytest.raises(ValueError, match="^static: fx must be positive"):
+        cell_table_points(STATIC_CAMERA[:6] + (0.0,) + STATIC_CAMERA[7:], 8, 0.0225, "static")
+    check_calibration(level, "static")  # as numbers it is fine: only the table's plane rules it out
 
 
 def test_the_anchor_is_the_picked_cells_place_plus_its_offset():
@@ -250,3 +262,52 @@ def test_the_train_flags_take_the_default_scenarios_cameras():
     np.testing.assert_allclose(config.grounding_anchor_wrist_camera[:6],
                                (0.07, 0.0, -0.0834, 0.0, -math.radians(15), -math.pi / 2), atol=1e-6)
     assert config.grounding_anchor_wrist_camera[6] == pytest.approx(112 / math.tan(math.radians(37.5)))
+
+
+def test_the_anchors_places_are_not_decayed_and_its_matrices_are(tmp_path):
+    from trivla_drake.train.trainer import _optimizer
+
+    model = TriVLA(_config())
+    config = TrainConfig(stage="policy", data=str(tmp_path), out=str(tmp_path / "o"), grounding_weight=1.0,
+                         weight_decay=0.1).resolved()
+    optimizer = _optimizer(model.policy, config)
+    decay_of = {id(p): group["weight_decay"] for group in optimizer.param_groups for p in group["params"]}
+    anchor = model.policy.grounding.anchor
+    assert decay_of[id(anchor.places)] == 0.0
+    assert decay_of[id(anchor.key[1].weight)] == 0.1
+
+
+def test_the_two_read_outs_share_one_computation_of_the_cells():
+    places = torch.from_numpy(cell_table_points(STATIC_CAMERA, 2, 0.0225)).float()
+    anchor = TokenAnchor(8, places, wrist_rays=torch.tensor([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]]),
+                         wrist_pose=(torch.eye(3), torch.zeros(3)), plane_height=0.0225)
+    tokens, wrist, query = torch.randn(2, 4, 8), torch.randn(2, 2, 8), torch.randn(2, 8)
+    tcp = _tcp_features([0.5, 0.1, 0.3], [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]).expand(2, -1)
+    direct = anchor(query, tokens, wrist, tcp)
+    picked = anchor.pick(query, anchor.cells(tokens, wrist, tcp))
+    for a, b in zip(direct, picked):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    # The geometry is float32 whatever the tcp's dtype or autocast: bfloat16 would cost millimetres.
+    tcp_bf16 = tcp.bfloat16()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        places_bf16, valid_bf16 = anchor.wrist_places(tcp_bf16)
+    places_fp32, valid_fp32 = anchor.wrist_places(tcp_bf16.float())
+    assert places_bf16.dtype == torch.float32 and torch.equal(valid_bf16, valid_fp32)
+    torch.testing.assert_close(places_bf16, places_fp32, rtol=0, atol=0)
+
+
+def test_a_held_only_bind_may_not_add_an_anchor_both_read_outs_would_use(tmp_path):
+    from trivla_drake.train.trainer import build_model
+
+    config = _config(())
+    save_checkpoint(TriVLA(dataclasses.replace(config, policy=dataclasses.replace(
+        config.policy, grounding_reads_gripper=True))), str(tmp_path / "init"))
+    held_only = {"stage": "policy", "preset": "tiny", "data": str(tmp_path), "out": str(tmp_path / "o"),
+                 "grounding_weight": 1.0,
+                 "init": str(tmp_path / "init"), "grounding_phase": "bind", "keep_grounding": True,
+                 "grounding_reads_gripper": True, "bind_held_only": True}
+    run = TrainConfig(**held_only, grounding_anchor_camera=STATIC_CAMERA).resolved()
+    run.validate()
+    with pytest.raises(ValueError, match=r"grounding_anchor_camera \(--grounding-anchor\).*--bind-held-only"):
+        build_model(run, None)
+    assert build_model(TrainConfig(**held_only).resolved(), None).policy.grounding.anchor is None

@@ -300,7 +300,8 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert option(tables[0], "--system1") == "runs/arm3_s1_export"
     probes = [argv for argv in after if argv[0] == "probe" and option(argv, "--checkpoint") == "models/trivla_cpu"
               and "--grounding-scenes" not in argv]  # step 43 checks the shipped grounding next to its anchored ones
-    assert [option(argv, "--grasp-episodes") for argv in probes] == ["6"]
+    # ... and probes the shipped model's grasps on 36 scenes next to its wrist-anchored one's
+    assert [option(argv, "--grasp-episodes") for argv in probes] == ["6", "12"]
 
 
 def test_the_soups_of_the_shipped_soups_follows_are_made_from_one_start_and_evaluated_on_eighteen_seeds(calls):
@@ -325,7 +326,7 @@ def test_the_soups_of_the_shipped_soups_follows_are_made_from_one_start_and_eval
 def test_the_anchored_groundings_are_bound_on_the_shipped_model_checked_and_the_wrist_one_followed(calls):
     """Step 43: two binds of the shipped model's grounding that differ only in the anchor's cameras, each
     checked with the shipped model on the same scenes; the wrist-anchored one followed with step 36's command
-    and evaluated on seeds 1000-1017 with the six seeds' flags."""
+    and evaluated on seeds 1000-1017 with the six seeds' flags; its grasps probed next to the shipped model's."""
     static, wrist = run_writing(calls, "runs/anchor_bind"), run_writing(calls, "runs/anchor_wrist_bind")
     assert option(static, "--init") == option(wrist, "--init") == "models/trivla_cpu"
     assert "--grounding-anchor" in static and "--grounding-anchor-wrist" not in static
@@ -347,3 +348,7 @@ def test_the_anchored_groundings_are_bound_on_the_shipped_model_checked_and_the_
     runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/anchor_wrist_export"]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+    grasps = {option(argv, "--checkpoint"): argv for argv in calls if argv[0] == "probe"
+              and option(argv, "--grasp-episodes") == "12"}
+    assert set(grasps) == {"runs/anchor_wrist_export", "models/trivla_cpu"}
+    assert _without(grasps["runs/anchor_wrist_export"], "--checkpoint") == _without(grasps["models/trivla_cpu"], "--checkpoint")

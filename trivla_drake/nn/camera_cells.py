@@ -18,19 +18,41 @@ import numpy as np
 
 CALIBRATION_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw", "fx", "fy", "cx", "cy", "width", "height")
 
+# The plane the grounding's anchor places lie on: a resting block's centre (4.5 cm cubes), where the hand
+# closes on it [m].
+ANCHOR_PLANE_HEIGHT = 0.0225
+
 
 def check_calibration(calibration, field: str) -> None:
     """ValueError naming `field` unless `calibration` is 12 finite numbers with positive focal lengths and
     image size, laid out as CALIBRATION_FIELDS."""
-    values = list(calibration)
+    try:
+        values = list(calibration)
+    except TypeError:
+        raise ValueError(f"{field} must be {len(CALIBRATION_FIELDS)} numbers ({', '.join(CALIBRATION_FIELDS)}); "
+                         f"got {calibration!r}") from None
     if len(values) != len(CALIBRATION_FIELDS):
         raise ValueError(f"{field} must have {len(CALIBRATION_FIELDS)} numbers ({', '.join(CALIBRATION_FIELDS)}); "
                          f"got {len(values)}")
-    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
         raise ValueError(f"{field} must be finite numbers; got {values}")
     for name in ("fx", "fy", "width", "height"):
         if values[CALIBRATION_FIELDS.index(name)] <= 0:
             raise ValueError(f"{field}: {name} must be positive; got {values[CALIBRATION_FIELDS.index(name)]}")
+
+
+def check_looks_down(calibration, height: float, field: str) -> None:
+    """ValueError naming `field` unless `calibration` (a camera fixed in the world) is valid and sees the
+    plane z = `height` [m] through all of its image: the rays through the image's four corners come down
+    to it (the rays that do form a half-plane of pixels, so every cell's does too)."""
+    check_calibration(calibration, field)
+    values = [float(v) for v in calibration]
+    fx, fy, cx, cy, width, height_px = values[6:]
+    rotation, origin = camera_pose(values)
+    corners = np.array([[(u - cx) / fx, (v - cy) / fy, 1.0] for u in (-0.5, width - 0.5) for v in (-0.5, height_px - 0.5)])
+    if origin[2] <= height or np.any((corners @ rotation.T)[:, 2] >= 0):
+        raise ValueError(f"{field}: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
+                         "through all of its image")
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -61,15 +83,16 @@ def cell_rays(calibration, grid: int) -> np.ndarray:
     return np.stack([(cols - cx) / fx, (rows - cy) / fy, np.ones_like(rows)], axis=-1).reshape(-1, 3)
 
 
-def cell_table_points(calibration, grid: int, height: float) -> np.ndarray:
+def cell_table_points(calibration, grid: int, height: float, field: str = "calibration") -> np.ndarray:
     """Where the ray through the centre of each of the image's grid x grid cells meets the plane
     z = `height` [m] of a camera fixed in the world: (grid * grid, 3) [m], cells in row-major order.
-    ValueError if a cell's ray does not come down to the plane."""
+    ValueError naming `field` if a cell's ray does not come down to the plane."""
+    check_calibration(calibration, field)
     rays = cell_rays(calibration, grid)
     rotation, origin = camera_pose(calibration)
     rays_w = rays @ rotation.T
     if np.any(rays_w[:, 2] >= 0) or origin[2] <= height:
-        raise ValueError(f"calibration: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
+        raise ValueError(f"{field}: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
                          "through every cell")
     t = (height - origin[2]) / rays_w[:, 2]
     return origin + t[:, None] * rays_w

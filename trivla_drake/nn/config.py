@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trivla_drake.action import ACTION_NAMES
-from trivla_drake.nn.camera_cells import check_calibration
+from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, check_calibration, check_looks_down
 
 PANDA_STATE_NAMES: tuple[str, ...] = tuple(
     [f"panda_joint{i}_position" for i in range(1, 8)]
@@ -350,7 +350,7 @@ def validate_config(config: TriVLAConfig) -> None:
         if not pol.instruction_grounding:
             raise ValueError("policy.grounding_anchor_camera anchors the instruction grounding's sub-goal on a "
                              "camera's image cells: it needs policy.instruction_grounding")
-        check_calibration(pol.grounding_anchor_camera, "policy.grounding_anchor_camera")
+        check_looks_down(pol.grounding_anchor_camera, ANCHOR_PLANE_HEIGHT, "policy.grounding_anchor_camera")
     if pol.grounding_anchor_wrist_camera:
         if not (pol.grounding_anchor_camera and pol.tcp_features):
             raise ValueError("policy.grounding_anchor_wrist_camera places the wrist view's cells from the hand's "

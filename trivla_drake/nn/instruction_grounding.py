@@ -52,7 +52,14 @@ class InstructionGrounding(nn.Module):
                  anchor_start: int = 0, anchor_wrist_start: int = 0) -> None:
         """`anchor`: the sub-goal's anchor on the image tokens (nn/token_anchor.py), reading the static view's
         from index `anchor_start` and, when it has wrist rays, the wrist view's from `anchor_wrist_start`
-        (the tcp features are then required); None: the head's output is the sub-goal."""
+        (the tcp features are then required); None: the head's output is the sub-goal. `tcp_dim`: 0, or 9
+        (nn/panda_tcp.py's features) for a head that reads them.
+
+        The anchor's pick is added to the head's output. An anchor added to a trained grounding (a bind with
+        --keep-grounding) so moves its sub-goal by the weighted places at first (tens of cm); the bind
+        learns it back within its first few hundred steps (results/grounding_anchor: the binds' loss)."""
+        if tcp_dim not in (0, TCP_DIM):
+            raise ValueError(f"tcp_dim must be 0 or {TCP_DIM} (the tool-centre point's features); got {tcp_dim}")
         super().__init__()
         self.tcp_dim = tcp_dim
         # Words from tokens: System 2's tokenizer is byte-level, so "red" is three tokens; a convolution
@@ -128,11 +135,17 @@ class InstructionGrounding(nn.Module):
         instruction = instruction + self.compose(kept.transpose(1, 2)).transpose(1, 2)
         if tcp is not None:
             tcp = tcp.to(instruction.dtype)
-        read, subgoal = self._read(instruction, instruction_mask, image_tokens, tcp,
+        cells = None
+        if self.anchor is not None:
+            static = image_tokens[:, self.anchor_start:self.anchor_start + self.anchor.places.shape[0]]
+            wrist = (image_tokens[:, self.anchor_wrist_start:self.anchor_wrist_start + self.anchor.wrist_cells]
+                     if self.anchor.wrist_cells else None)
+            cells = self.anchor.cells(static, wrist, tcp if self.anchor.wrist_cells else None)
+        read, subgoal = self._read(instruction, instruction_mask, image_tokens, tcp, cells,
                                    self.query, self.score, self.subgoal_head)
         if self.held is not None:
             # Both read-outs run on every row (a batch may mix phases, and every weight stays in the graph).
-            held_read, held_subgoal = self._read(instruction, instruction_mask, image_tokens, tcp,
+            held_read, held_subgoal = self._read(instruction, instruction_mask, image_tokens, tcp, cells,
                                                  self.held["query"], self.held["score"], self.held["subgoal_head"])
             held = holding_block(gripper).unsqueeze(-1)
             read, subgoal = torch.where(held, held_read, read), torch.where(held, held_subgoal, subgoal)
@@ -148,9 +161,10 @@ class InstructionGrounding(nn.Module):
             subgoal = torch.cat([subgoal, yaw], dim=-1)
         return goal, subgoal
 
-    def _read(self, instruction, instruction_mask, image_tokens, tcp, query, score, subgoal_head):
+    def _read(self, instruction, instruction_mask, image_tokens, tcp, anchor_cells, query, score, subgoal_head):
         """One read-out: each token's query attends over the image tokens; their reads and queries are
-        averaged with softmax weights of the tokens' scores -> the read (B, D) and the sub-goal (B, 3)."""
+        averaged with softmax weights of the tokens' scores -> the read (B, D) and the sub-goal (B, 3)
+        (with an anchor, plus its pick of `anchor_cells`, TokenAnchor.cells())."""
         queries = query(instruction)
         reads = self.attention(queries, image_tokens)
         scores = score(instruction).squeeze(-1).masked_fill(~instruction_mask, float("-inf"))
@@ -159,11 +173,8 @@ class InstructionGrounding(nn.Module):
         chosen = (weights * queries).sum(1)
         head_input = [read, chosen] + ([tcp] if self.tcp_skip is not None else [])
         subgoal = subgoal_head(torch.cat(head_input, dim=-1))
-        if self.anchor is not None:
-            cells = image_tokens[:, self.anchor_start:self.anchor_start + self.anchor.places.shape[0]]
-            wrist = (image_tokens[:, self.anchor_wrist_start:self.anchor_wrist_start + self.anchor.wrist_cells]
-                     if self.anchor.wrist_cells else None)
-            subgoal = subgoal + self.anchor(chosen, cells, wrist, tcp if self.anchor.wrist_cells else None)[0]
+        if anchor_cells is not None:
+            subgoal = subgoal + self.anchor.pick(chosen, anchor_cells)[0]
         return read, subgoal
 
     def start_held_from_open(self) -> None:

@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn import flow_matching
-from trivla_drake.nn.camera_cells import camera_pose, cell_rays, cell_table_points
+from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, camera_pose, cell_rays, cell_table_points
 from trivla_drake.nn.config import PolicyConfig
 from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
@@ -20,10 +20,6 @@ from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceSt
 from trivla_drake.nn.instruction_grounding import InstructionGrounding
 from trivla_drake.nn.token_anchor import TokenAnchor
 from trivla_drake.nn.video_former import VideoFormer
-
-# The plane the grounding's anchor places lie on: a resting block's centre (4.5 cm cubes), where the hand
-# closes on it [m].
-ANCHOR_PLANE_HEIGHT = 0.0225
 
 
 def check_noise_scale(scale: float, field: str = "noise_scale") -> float:
@@ -209,8 +205,8 @@ class FlowMatchingPolicy(nn.Module):
         cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M); the grounding's
         predicted sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then its yaw's
         (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
-        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw` or `grounding_reads_tcp`.
-        `gripper` (B, 1): the gripper's closure (panda_gripper), needed with `grounding_reads_gripper`."""
+        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp` or
+        `grounding_anchor_wrist_camera`. `gripper` (B, 1): the gripper's closure (panda_gripper), needed with `grounding_reads_gripper`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -220,7 +216,8 @@ class FlowMatchingPolicy(nn.Module):
                 if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_FEATURE_DIM)):
                     got = None if tcp is None else tuple(tcp.shape)
                     raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
-                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp); got {got}")
+                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera); "
+                                     f"got {got}")
                 goal, subgoal = self._ground(vl, vl_mask, tcp, gripper)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
@@ -279,7 +276,8 @@ class FlowMatchingPolicy(nn.Module):
         if count == 0 or grid * grid != count:
             raise ValueError(f"policy.grounding_anchor_camera anchors on a square grid of static-view image tokens; "
                              f"this System 2 gives {count}")
-        places = torch.from_numpy(cell_table_points(c.grounding_anchor_camera, grid, ANCHOR_PLANE_HEIGHT)).float()
+        places = torch.from_numpy(cell_table_points(c.grounding_anchor_camera, grid, ANCHOR_PLANE_HEIGHT,
+                                                     "policy.grounding_anchor_camera")).float()
         wrist = {}
         if c.grounding_anchor_wrist_camera:
             rotation, origin = camera_pose(c.grounding_anchor_wrist_camera)

@@ -29,6 +29,9 @@ class TokenAnchor(nn.Module):
     """Query (B, D) + a fixed camera's image tokens (B, N, D) -> an anchor position (B, 3) in tcp feature
     units (nn/panda_tcp.normalize_position): sum_i softmax_i(q . k_i) (place_i + offset(token_i))."""
 
+    # Positions: the optimizer does not decay them toward the origin (train/trainer.py).
+    NO_WEIGHT_DECAY = ("places",)
+
     def __init__(self, dim: int, places: torch.Tensor, wrist_rays: torch.Tensor | None = None,
                  wrist_pose: tuple[torch.Tensor, torch.Tensor] | None = None, plane_height: float = 0.0) -> None:
         """`places` (N, 3) [m]: where each token's image cell looks on the table (nn/camera_cells.py).
@@ -58,6 +61,13 @@ class TokenAnchor(nn.Module):
                 tcp: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """-> (anchor (B, 3) in feature units, the softmax weights over the tokens (B, N [+ M])). With
         wrist rays, also the wrist view's tokens (B, M, D) and the tcp features (B, 9) (nn/panda_tcp.py)."""
+        return self.pick(query, self.cells(tokens, wrist_tokens, tcp))
+
+    def cells(self, tokens: torch.Tensor, wrist_tokens: torch.Tensor | None = None,
+              tcp: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """What every query's pick reads, computed once per forward (a grounding's two read-outs share it):
+        the cells' keys (B, N [+ M], D), their points (place + offset, B, N [+ M], 3, feature units) and,
+        with wrist rays, which cells look at the table (B, N + M) bool (None without)."""
         if tokens.shape[1] != self.places.shape[0]:
             raise ValueError(f"tokens must be (B, {self.places.shape[0]}, D), one per anchored image cell; "
                              f"got {tuple(tokens.shape)}")
@@ -71,25 +81,35 @@ class TokenAnchor(nn.Module):
             if tcp is None or tuple(tcp.shape) != (batch, 9):
                 got = None if tcp is None else tuple(tcp.shape)
                 raise ValueError(f"tcp must be ({batch}, 9), the tool-centre point's features; got {got}")
-            wrist_places, wrist_valid = self.wrist_places(tcp.to(tokens.dtype))
+            wrist_places, wrist_valid = self.wrist_places(tcp)
             tokens = torch.cat([tokens, wrist_tokens], dim=1)
-            places = torch.cat([places, wrist_places], dim=1)
+            places = torch.cat([places, wrist_places.to(tokens.dtype)], dim=1)
             valid = torch.cat([torch.ones_like(wrist_valid[:, :1]).expand(-1, self.places.shape[0]), wrist_valid], 1)
-        logits = torch.einsum("bd,bnd->bn", self.query(query), self.key(tokens)) * self.scale
+        return self.key(tokens), places + self.offset(tokens), valid
+
+    def pick(self, query: torch.Tensor, cells: tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One query (B, D) over `cells` (from cells()) -> (anchor (B, 3), softmax weights (B, N [+ M]))."""
+        keys, points, valid = cells
+        logits = torch.einsum("bd,bnd->bn", self.query(query), keys) * self.scale
         if valid is not None:
             logits = logits.masked_fill(~valid, float("-inf"))
         weights = torch.softmax(logits, dim=-1)
-        points = places + self.offset(tokens)
-        return torch.einsum("bn,bnc->bc", weights, points), weights
+        return torch.einsum("bn,bnc->bc", weights, points.to(weights.dtype)), weights
 
     def wrist_places(self, tcp: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Where the wrist view's cell rays meet the plane, in feature units (B, M, 3), and which do (B, M)
-        bool, from the tcp features (B, 9): position in feature units, the rotation's first two columns."""
+        bool, from the tcp features (B, 9): position in feature units, the rotation's first two columns.
+        Computed in float32 whatever the caller's dtype or autocast (bfloat16 would cost millimetres)."""
+        with torch.autocast(device_type=tcp.device.type, enabled=False):
+            return self._wrist_places(tcp.float())
+
+    def _wrist_places(self, tcp: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         position = denormalize_position(tcp[:, :3])
         first, second = tcp[:, 3:6], tcp[:, 6:9]
         rotation = torch.stack([first, second, torch.linalg.cross(first, second)], dim=-1)  # columns
-        origin = position + rotation @ self.wrist_origin_in_tcp.to(tcp.dtype)
-        rays = self.wrist_rays_in_tcp.to(tcp.dtype) @ rotation.transpose(1, 2)  # (B, M, 3) in the world
+        origin = position + rotation @ self.wrist_origin_in_tcp.float()
+        rays = self.wrist_rays_in_tcp.float() @ rotation.transpose(1, 2)  # (B, M, 3) in the world
         down = rays[..., 2]
         reach = (self.plane_height - origin[:, 2:3]) / down.clamp(max=-1e-6)
         valid = (down < -1e-3) & (reach > 0)

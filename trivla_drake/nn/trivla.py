@@ -283,13 +283,13 @@ class TriVLA(nn.Module):
 
     def _tcp_for_policy(self, state: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor | None:
         """The tcp features (B, 9) of unnormalised states when System 1 reads them beyond Q_s
-        (policy.subgoal_offset / policy.grounding_reads_tcp), else None."""
+        (policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera), else None."""
         if not self.policy.reads_tcp:
             return None
         if state is None:
             raise ValueError("state is required: this System 1 reads the tool-centre point beside Q_s "
-                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp), which it computes from the "
-                             "robot state Q_s was encoded from")
+                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera), "
+                             "which it computes from the robot state Q_s was encoded from")
         return self.tcp_features(state).to(dtype)
 
     def sample_actions_batch(
@@ -340,7 +340,8 @@ class TriVLA(nn.Module):
     ) -> np.ndarray:
         """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
         tool-centre-point position [m] in the arm's base frame (ValueError without a grounding).
-        `state` (state_dim,), the unnormalised robot state: required with policy.grounding_reads_tcp."""
+        `state` (state_dim,), the unnormalised robot state: required when the grounding reads the tcp
+        (policy.grounding_reads_tcp, grounding_anchor_wrist_camera)."""
         return self.predict_grounding(static_rgb, wrist_rgb, instruction, state)[0]
 
     @torch.inference_mode()

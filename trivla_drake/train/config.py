@@ -15,7 +15,7 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
-from trivla_drake.nn.camera_cells import check_calibration
+from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, check_calibration, check_looks_down
 from trivla_drake.nn.config import check_vlm_loss_weighting
 
 STAGES = ("video", "vlm", "policy")
@@ -368,7 +368,7 @@ class TrainConfig:
                 raise ValueError("grounding_anchor_camera (--grounding-anchor) anchors System 1's instruction "
                                  "grounding on a camera's image cells: it needs the policy stage and grounding_weight "
                                  "(--grounding-weight) > 0")
-            check_calibration(self.grounding_anchor_camera, "grounding_anchor_camera")
+            check_looks_down(self.grounding_anchor_camera, ANCHOR_PLANE_HEIGHT, "grounding_anchor_camera")
         if self.grounding_anchor_wrist_camera:
             if not (self.grounding_anchor_camera and self.tcp_features):
                 raise ValueError("grounding_anchor_wrist_camera (--grounding-anchor-wrist) adds the wrist view's cells "
@@ -404,8 +404,10 @@ class TrainConfig:
     def __post_init__(self) -> None:
         # A saved config (JSON) gives a list: as a tuple it compares equal to the flag's on --resume.
         self.grounding_carry_tasks = tuple(self.grounding_carry_tasks)
-        self.grounding_anchor_camera = tuple(float(v) for v in self.grounding_anchor_camera)
-        self.grounding_anchor_wrist_camera = tuple(float(v) for v in self.grounding_anchor_wrist_camera)
+        # (Anything else is left for validate() to refuse, naming the field.)
+        for name in ("grounding_anchor_camera", "grounding_anchor_wrist_camera"):
+            if isinstance(getattr(self, name), list):
+                setattr(self, name, tuple(getattr(self, name)))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""

@@ -243,6 +243,11 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
                     and not getattr(model.config.policy, field)):
                 raise ValueError(f"{field} ({flag}) changes the instruction grounding's anchor, which a follow run "
                                  f"keeps as its {where} has it: bind one with {flag} first")
+        if (config.bind_held_only and config.grounding_anchor_camera
+                and not model.config.policy.grounding_anchor_camera):
+            raise ValueError(f"grounding_anchor_camera (--grounding-anchor) adds an anchor that both of the "
+                             f"grounding's read-outs use, which bind_held_only (--bind-held-only) would leave "
+                             f"untrained: its {where} has none; bind one without --bind-held-only first")
         if config.keep_grounding and model.policy.grounding is None:
             raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
                              f"which has none: bind one without --keep-grounding first")
@@ -399,13 +404,18 @@ def learning_rate(config: TrainConfig, step: int) -> float:
 
 
 def _optimizer(module: nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
-    """AdamW; matrices decay, vectors do not; in a joint run System 1's instruction grounding learns
-    at `grounding_lr_scale` times the run's learning rate (each group's "lr_scale")."""
+    """AdamW; matrices decay, vectors do not, nor the parameters a module names in its NO_WEIGHT_DECAY
+    (positions, such as the grounding anchor's places, which decay would pull toward the origin); in a
+    joint run System 1's instruction grounding learns at `grounding_lr_scale` times the run's learning
+    rate (each group's "lr_scale")."""
     scaled = config.grounding_phase == "joint"
+    undecayed = {f"{prefix}.{name}" if prefix else name
+                 for prefix, sub in module.named_modules() for name in getattr(sub, "NO_WEIGHT_DECAY", ())}
     groups: dict[tuple[bool, bool], list[nn.Parameter]] = {}
     for name, p in module.named_parameters():
         if p.requires_grad:
-            groups.setdefault((p.dim() >= 2, scaled and name.startswith("grounding.")), []).append(p)
+            decay = p.dim() >= 2 and name not in undecayed
+            groups.setdefault((decay, scaled and name.startswith("grounding.")), []).append(p)
     return torch.optim.AdamW(
         [{"params": params, "weight_decay": config.weight_decay if decay else 0.0,
           "lr_scale": config.grounding_lr_scale if grounding else 1.0}
