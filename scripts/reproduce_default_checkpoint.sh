@@ -770,7 +770,7 @@ fi
 #     anchored on the static camera's image cells, and once more on both cameras' (--grounding-anchor-wrist);
 #     each checked on 20 scenes next to the shipped model; the wrist-anchored one followed 2500 steps with step
 #     36's command (seed 43), exported, eighteen seeds (1000-1017); its grasps and the shipped model's probed on
-#     36 scenes (probe --grasp-episodes 12).
+#     36 scenes (probe --grasp-episodes 12), and both evaluated on 40 more episodes of each grasping task (seed 2000).
 if [[ "${ANCHOR:-0}" == 1 ]]; then
   mkdir -p results/grounding_anchor
   ANCHOR_BIND=(--grounding-phase bind --keep-grounding --grounding-carry "$CARRYING" --lr 1e-3 --warmup-steps 1
@@ -795,6 +795,12 @@ if [[ "${ANCHOR:-0}" == 1 ]]; then
       > results/grounding_anchor/grasps_wrist.md
   trivla-drake probe --checkpoint models/trivla_cpu --grasp-episodes 12 --threads 1 \
       > results/grounding_anchor/grasps_shipped.md
+  for checkpoint in "$RUNS/anchor_wrist_export" models/trivla_cpu; do
+    name=wrist
+    [[ "$checkpoint" == models/trivla_cpu ]] && name=shipped
+    trivla-drake evaluate --policy "$checkpoint" --tasks lift_block,stack_block,place_in_bowl --episodes 40 \
+        --seed 2000 --workers 2 --json > "results/grounding_anchor/grasp_tasks_$name.json"
+  done
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_anchor/compare.png \
       shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF wrist_anchor=results/grounding_anchor/wrist \
       > results/grounding_anchor/compare.md

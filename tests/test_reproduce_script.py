@@ -287,7 +287,8 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
     runs = [argv for argv in after if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
-            and option(argv, "--chains") is None and "--prelude" not in argv]
+            and option(argv, "--chains") is None and "--prelude" not in argv
+            and option(argv, "--tasks") is None]  # step 43 evaluates its grasping tasks on 40 more episodes
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))  # 1012-1017: session 37
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
@@ -345,10 +346,16 @@ def test_the_anchored_groundings_are_bound_on_the_shipped_model_checked_and_the_
     assert "--drop-unused-llm-layers" in run_writing(calls, "runs/anchor_wrist_export")
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
-    runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/anchor_wrist_export"]
+    runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/anchor_wrist_export"
+            and option(argv, "--tasks") is None]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     grasps = {option(argv, "--checkpoint"): argv for argv in calls if argv[0] == "probe"
               and option(argv, "--grasp-episodes") == "12"}
     assert set(grasps) == {"runs/anchor_wrist_export", "models/trivla_cpu"}
     assert _without(grasps["runs/anchor_wrist_export"], "--checkpoint") == _without(grasps["models/trivla_cpu"], "--checkpoint")
+    grasping = {option(argv, "--policy"): argv for argv in calls if argv[0] == "evaluate"
+                and option(argv, "--seed") == "2000"}
+    assert set(grasping) == {"runs/anchor_wrist_export", "models/trivla_cpu"}
+    assert option(grasping["models/trivla_cpu"], "--tasks") == "lift_block,stack_block,place_in_bowl"
+    assert _without(grasping["runs/anchor_wrist_export"], "--policy") == _without(grasping["models/trivla_cpu"], "--policy")
