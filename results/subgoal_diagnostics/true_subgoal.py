@@ -17,8 +17,8 @@ class TrueSubgoal(TriVLAHarnessPolicy):
         pol = self.model.policy
         original = pol._ground
         me = self
-        def ground(vl, vl_mask, tcp):
-            goal, sub = original(vl, vl_mask, tcp)
+        def ground(vl, vl_mask, tcp, *rest):  # rest: the gripper's closure, for a grounding that reads it
+            goal, sub = original(vl, vl_mask, tcp, *rest)
             if me.true is not None:
                 sub = sub.clone()
                 sub[:, :3] = normalize_position(torch.as_tensor(me.true, dtype=sub.dtype))[None]
@@ -52,7 +52,7 @@ def evaluate_seeds(policy, kind: str, seeds: list[int], out: str) -> None:
         print(s, r["average_success"], {t: v["successes"] for t, v in r["tasks"].items()}, flush=True)
 
 
-if __name__ == "__main__":
-    policy = TrueSubgoal.from_checkpoint("models/trivla_cpu")
+if __name__ == "__main__":  # SEEDS OUT_DIR [CHECKPOINT (default models/trivla_cpu)]
+    policy = TrueSubgoal.from_checkpoint(sys.argv[3] if len(sys.argv) > 3 else "models/trivla_cpu")
     policy.name = "trivla+true_subgoal"
     evaluate_seeds(policy, "true", [int(s) for s in sys.argv[1].split(",")], sys.argv[2])
