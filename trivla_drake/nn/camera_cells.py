@@ -46,13 +46,9 @@ def check_looks_down(calibration, height: float, field: str) -> None:
     plane z = `height` [m] through all of its image: the rays through the image's four corners come down
     to it (the rays that do form a half-plane of pixels, so every cell's does too)."""
     check_calibration(calibration, field)
-    values = [float(v) for v in calibration]
-    fx, fy, cx, cy, width, height_px = values[6:]
-    rotation, origin = camera_pose(values)
-    corners = np.array([[(u - cx) / fx, (v - cy) / fy, 1.0] for u in (-0.5, width - 0.5) for v in (-0.5, height_px - 0.5)])
-    if origin[2] <= height or np.any((corners @ rotation.T)[:, 2] >= 0):
-        raise ValueError(f"{field}: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
-                         "through all of its image")
+    width, height_px = (float(v) for v in list(calibration)[10:])
+    cols, rows = np.meshgrid([-0.5, width - 0.5], [-0.5, height_px - 0.5])
+    _meet_plane(calibration, _pixel_rays(calibration, cols, rows), height, field)
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -71,28 +67,38 @@ def camera_pose(calibration) -> tuple[np.ndarray, np.ndarray]:
     return rotation_from_rpy(roll, pitch, yaw), np.array([x, y, z])
 
 
-def cell_rays(calibration, grid: int) -> np.ndarray:
+def _pixel_rays(calibration, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Directions (K, 3) in the camera frame (z = 1) through the pixels (cols, rows), flattened row-major."""
+    fx, fy, cx, cy = (float(v) for v in list(calibration)[6:10])
+    return np.stack([(cols - cx) / fx, (rows - cy) / fy, np.ones_like(rows)], axis=-1).reshape(-1, 3)
+
+
+def _meet_plane(calibration, rays: np.ndarray, height: float, field: str) -> np.ndarray:
+    """Where camera-frame `rays` (K, 3) of a camera fixed in the world meet the plane z = `height` [m]:
+    (K, 3) [m]; ValueError naming `field` if one does not come down to it."""
+    rotation, origin = camera_pose(calibration)
+    rays_w = rays @ rotation.T
+    if np.any(rays_w[:, 2] >= 0) or origin[2] <= height:
+        raise ValueError(f"{field}: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
+                         "through all of its image")
+    t = (height - origin[2]) / rays_w[:, 2]
+    return origin + t[:, None] * rays_w
+
+
+def cell_rays(calibration, grid: int, field: str = "calibration") -> np.ndarray:
     """Directions (grid * grid, 3) in the camera frame (z = 1) through the centres of the image's
     grid x grid cells, in row-major order (the order of System 2's image tokens after pixel shuffle)."""
-    check_calibration(calibration, "calibration")
+    check_calibration(calibration, field)
     if grid < 1:
         raise ValueError(f"grid must be >= 1; got {grid}")
-    fx, fy, cx, cy, width, height = (float(v) for v in list(calibration)[6:])
+    width, height = (float(v) for v in list(calibration)[10:])
     centres = (np.arange(grid) + 0.5) / grid  # cell centres as fractions of the image
     rows, cols = np.meshgrid(centres * height - 0.5, centres * width - 0.5, indexing="ij")
-    return np.stack([(cols - cx) / fx, (rows - cy) / fy, np.ones_like(rows)], axis=-1).reshape(-1, 3)
+    return _pixel_rays(calibration, cols, rows)
 
 
 def cell_table_points(calibration, grid: int, height: float, field: str = "calibration") -> np.ndarray:
     """Where the ray through the centre of each of the image's grid x grid cells meets the plane
     z = `height` [m] of a camera fixed in the world: (grid * grid, 3) [m], cells in row-major order.
     ValueError naming `field` if a cell's ray does not come down to the plane."""
-    check_calibration(calibration, field)
-    rays = cell_rays(calibration, grid)
-    rotation, origin = camera_pose(calibration)
-    rays_w = rays @ rotation.T
-    if np.any(rays_w[:, 2] >= 0) or origin[2] <= height:
-        raise ValueError(f"{field}: the camera at z = {origin[2]:.3f} m does not look down onto z = {height:.3f} m "
-                         "through every cell")
-    t = (height - origin[2]) / rays_w[:, 2]
-    return origin + t[:, None] * rays_w
+    return _meet_plane(calibration, cell_rays(calibration, grid, field), height, field)

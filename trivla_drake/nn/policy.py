@@ -206,7 +206,8 @@ class FlowMatchingPolicy(nn.Module):
         predicted sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then its yaw's
         (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
         features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp` or
-        `grounding_anchor_wrist_camera`. `gripper` (B, 1): the gripper's closure (panda_gripper), needed with `grounding_reads_gripper`."""
+        `grounding_anchor_wrist_camera`. `gripper` (B, 1): the gripper's closure (panda_gripper), needed with
+        `grounding_reads_gripper`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -216,8 +217,8 @@ class FlowMatchingPolicy(nn.Module):
                 if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_FEATURE_DIM)):
                     got = None if tcp is None else tuple(tcp.shape)
                     raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
-                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera); "
-                                     f"got {got}")
+                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / "
+                                     f"grounding_anchor_wrist_camera); got {got}")
                 goal, subgoal = self._ground(vl, vl_mask, tcp, gripper)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
@@ -281,7 +282,8 @@ class FlowMatchingPolicy(nn.Module):
         wrist = {}
         if c.grounding_anchor_wrist_camera:
             rotation, origin = camera_pose(c.grounding_anchor_wrist_camera)
-            wrist = {"wrist_rays": torch.from_numpy(cell_rays(c.grounding_anchor_wrist_camera, grid)).float(),
+            wrist = {"wrist_rays": torch.from_numpy(cell_rays(c.grounding_anchor_wrist_camera, grid,
+                                                                  "policy.grounding_anchor_wrist_camera")).float(),
                      "wrist_pose": (torch.from_numpy(rotation).float(), torch.from_numpy(origin).float())}
         anchor = TokenAnchor(c.hidden_size, places, plane_height=ANCHOR_PLANE_HEIGHT, **wrist)
         return {"anchor": anchor, "anchor_start": start, "anchor_wrist_start": wrist_start}

@@ -288,8 +288,8 @@ class TriVLA(nn.Module):
             return None
         if state is None:
             raise ValueError("state is required: this System 1 reads the tool-centre point beside Q_s "
-                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera), "
-                             "which it computes from the robot state Q_s was encoded from")
+                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / "
+                             "grounding_anchor_wrist_camera), which it computes from the robot state Q_s was encoded from")
         return self.tcp_features(state).to(dtype)
 
     def sample_actions_batch(
