@@ -310,7 +310,7 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
 
 
-def test_grounding_phases_bind_then_follow(runs, tmp_path):
+def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     """The two-step recipe: --grounding-phase bind trains only the binding (the grounding but its goal
     projection, and the Q_vl path) on the sub-goal loss alone over the approach frames; follow, from
     that checkpoint, keeps the binding and trains the rest of System 1 on both losses. Follow without a
@@ -384,6 +384,20 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path):
     assert offset_model.config.policy.subgoal_offset and not after.config.policy.subgoal_offset
     assert offset_model.policy.subgoal_offset.mlp[2].weight.abs().sum() > 0
     assert torch.equal(offset_model.policy.grounding.compose.weight, after.policy.grounding.compose.weight)
+    # --subgoal-noise: the run hands its noise to every flow-matching loss (tests/test_subgoal_noise.py checks what it does)
+    seen = []
+    compute_loss = TriVLA.compute_loss
+
+    def recording(self, batch, **kwargs):
+        seen.append(kwargs.get("subgoal_noise"))
+        return compute_loss(self, batch, **kwargs)
+
+    monkeypatch.setattr(TriVLA, "compute_loss", recording)
+    train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "noisy"), init=bound["final_checkpoint"], steps=2,
+                      grounding_weight=1.0, grounding_phase="follow", subgoal_offset=True, subgoal_noise=0.02,
+                      **runs["common"]))
+    monkeypatch.undo()
+    assert seen == [0.02, 0.02]
     # --subgoal-yaw: a bind run adds a yaw head to the grounding it keeps and trains it on the dataset's yaw
     # labels; a follow run from it trains System 1's yaw encoder; a follow run cannot add the head
     yaw_bind = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "yaw_bind"), init=bound["final_checkpoint"],

@@ -199,6 +199,7 @@ class FlowMatchingPolicy(nn.Module):
         q_p: torch.Tensor | None,
         tcp: torch.Tensor | None = None,
         gripper: torch.Tensor | None = None,
+        subgoal_shift: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
         configured (and, with `subgoal_offset`, the sub-goal seen from the tcp position); the
@@ -207,7 +208,8 @@ class FlowMatchingPolicy(nn.Module):
         (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
         features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp` or
         `grounding_anchor_wrist_camera`. `gripper` (B, 1): the gripper's closure (panda_gripper), needed with
-        `grounding_reads_gripper`."""
+        `grounding_reads_gripper`. `subgoal_shift` (B, 3) in tcp feature units: added to the sub-goal the
+        offset encoder reads, not to the one returned (training noise, `TrainConfig.subgoal_noise`)."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -222,7 +224,8 @@ class FlowMatchingPolicy(nn.Module):
                 goal, subgoal = self._ground(vl, vl_mask, tcp, gripper)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
-                    q_s = q_s + self.subgoal_offset(subgoal[:, :3], tcp[:, :3]).to(q_s.dtype)
+                    seen = subgoal[:, :3] if subgoal_shift is None else subgoal[:, :3] + subgoal_shift.to(subgoal.dtype)
+                    q_s = q_s + self.subgoal_offset(seen, tcp[:, :3]).to(q_s.dtype)
                 if self.subgoal_yaw is not None:
                     q_s = q_s + self.subgoal_yaw(subgoal[:, 3:5], tcp).to(q_s.dtype)
             parts.append(vl)

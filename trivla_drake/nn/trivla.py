@@ -23,7 +23,7 @@ from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
 from trivla_drake.nn.panda_gripper import gripper_closure
-from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
+from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position, normalize_displacement
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
@@ -262,14 +262,30 @@ class TriVLA(nn.Module):
         features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
-    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):
+    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None, subgoal_shift=None):
         """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
         memory mask, predicted sub-goal or None. `state` (B, state_dim), unnormalised, is read only
         with policy.subgoal_offset or policy.grounding_reads_tcp (the tcp features) or
-        policy.grounding_reads_gripper (the gripper's closure); ValueError when such a model gets none."""
+        policy.grounding_reads_gripper (the gripper's closure); ValueError when such a model gets none.
+        `subgoal_shift` (B, 3) in tcp feature units: added to the sub-goal the offset encoder reads (training only)."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
         return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
-                                      self._tcp_for_policy(state, q_s.dtype), self._gripper_for_grounding(state))
+                                      self._tcp_for_policy(state, q_s.dtype), self._gripper_for_grounding(state),
+                                      subgoal_shift=subgoal_shift)
+
+    def _subgoal_shift(self, batch: int, noise: float, generator: torch.Generator | None) -> torch.Tensor | None:
+        """Gaussian noise of standard deviation `noise` [m] along x and y, none in height, in tcp feature units
+        (B, 3), for the sub-goal System 1's offset encoder reads in training; None when `noise` is 0."""
+        if not noise:
+            return None
+        if not (math.isfinite(noise) and noise > 0):
+            raise ValueError(f"subgoal_noise must be a finite standard deviation >= 0 [m]; got {noise}")
+        if self.policy.subgoal_offset is None:
+            raise ValueError("subgoal_noise moves the sub-goal System 1's offset encoder reads: this model has none "
+                             "(policy.subgoal_offset is off)")
+        shift = torch.zeros(batch, 3, device=self.device)
+        shift[:, :2] = torch.randn(batch, 2, generator=generator, device=self.device) * noise
+        return normalize_displacement(shift)
 
     def _gripper_for_grounding(self, state: torch.Tensor | None) -> torch.Tensor | None:
         """The gripper's closure (B, 1) of unnormalised states when System 1's grounding reads it
@@ -520,6 +536,7 @@ class TriVLA(nn.Module):
         generator: torch.Generator | None = None,
         train_systems_2_3: bool = False,
         grounding_weight: float = 1.0,
+        subgoal_noise: float = 0.0,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 1's flow-matching loss (eq. 5 with velocity regression) on a batch of B samples.
 
@@ -533,6 +550,9 @@ class TriVLA(nn.Module):
         With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py)
         and optionally "subgoal_in_loss" bool (B,) (only those rows count): the loss adds
         `grounding_weight` x the grounding's sub-goal loss.
+        `subgoal_noise` [m] (with policy.subgoal_offset): the sub-goal the offset encoder reads is moved by
+        Gaussian noise of that standard deviation along x and y (drawn from `generator`); the grounding's
+        own loss reads the sub-goal as predicted.
         Returns (loss, info)."""
         pol = self.config.policy
         actions = self._batch_tensor(batch, "action")
@@ -570,7 +590,8 @@ class TriVLA(nn.Module):
                         batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
                     )
         q_s = self.policy.encode_state(self._state_input(state), eid)
-        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
+        shift = self._subgoal_shift(b, subgoal_noise, generator)
+        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state, shift)
         flow_loss, t = self.policy.loss(
             self.normalizer.normalize_action(actions),
             q_s,

@@ -86,6 +86,7 @@ def config_from_args(args: argparse.Namespace):
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
         subgoal_offset=args.subgoal_offset,
+        subgoal_noise=args.subgoal_noise,
         subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
         grounding_carry_tasks=tuple(t for t in (args.grounding_carry_tasks or "").split(",") if t),
@@ -256,6 +257,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "
                              "has none)")
+    parser.add_argument("--subgoal-noise", type=float, default=0.0, metavar="METRES",
+                        help="policy, with --subgoal-offset: during training, move the sub-goal System 1 reads by "
+                             "Gaussian noise of this standard deviation along x and y, so it learns to trust the "
+                             "grounding as far as it holds on unseen scenes (inference is unchanged; default 0)")
     parser.add_argument("--subgoal-yaw", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also predicts the hand's yaw "
                              "at its sub-goal (modulo a quarter turn) and System 1 reads it; bind it first (a bind "

@@ -316,11 +316,13 @@ class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
     def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
-                 dense_weight: float = 0.0, grounding_weight: float = 0.0, grounding_phase: str = "joint") -> None:
+                 dense_weight: float = 0.0, grounding_weight: float = 0.0, grounding_phase: str = "joint",
+                 subgoal_noise: float = 0.0) -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
         self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
         self.grounding_weight, self.grounding_phase = grounding_weight, grounding_phase
+        self.subgoal_noise = subgoal_noise
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
@@ -329,7 +331,8 @@ class StageLoss(nn.Module):
             return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight)
         if self.grounding_phase == "bind":
             return self.model.compute_grounding_loss(batch)
-        return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight)
+        return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight,
+                                       subgoal_noise=self.subgoal_noise)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -613,7 +616,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             raise ValueError(f"cannot resume {resume_from}: it holds no weight average")
         average.load_state_dict(train_state["weight_average"])  # and the trained weights back into the model
     loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
-                            config.grounding_weight, config.grounding_phase)
+                            config.grounding_weight, config.grounding_phase, config.subgoal_noise)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(
