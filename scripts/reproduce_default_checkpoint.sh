@@ -805,3 +805,25 @@ if [[ "${ANCHOR:-0}" == 1 ]]; then
       shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF wrist_anchor=results/grounding_anchor/wrist \
       > results/grounding_anchor/compare.md
 fi
+# 44. Optional (SUBGOAL_TRUST=1, after steps 41 and 42; results/subgoal_trust/): how far the shipped grounding's sub-goal
+#     lies from its label on the frames System 1 follows it on; step 42's two follows again with --subgoal-noise 0.02
+#     (the sub-goal System 1 reads in training moved by 2 cm along x and y, so it is about as far off as on unseen
+#     scenes); their soup on eighteen seeds (1000-1017) and on 40 more episodes of each grasping task (seed 2000),
+#     compared with the shipped soup and step 42's soup of the two follows without noise.
+if [[ "${SUBGOAL_TRUST:-0}" == 1 ]]; then
+  mkdir -p results/subgoal_trust
+  "${PYTHON:-python}" results/subgoal_trust/grounding_on_training_frames.py models/trivla_cpu "$MORE_DATA" \
+      > results/subgoal_trust/grounding_on_training_frames.md
+  for seed in 41 42; do
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/noisyfollow${seed}" --init models/trivla_cpu \
+        --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 2500 --seed "$seed" --subgoal-offset \
+        --ema-decay 0.999 --subgoal-noise 0.02
+  done
+  trivla-drake soup "$RUNS/noisyfollow41/final" "$RUNS/noisyfollow42/final" --out "$RUNS/soupN" --drop-unused-llm-layers
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/soupN" results/subgoal_trust/soupN
+  trivla-drake evaluate --policy "$RUNS/soupN" --tasks lift_block,stack_block,place_in_bowl --episodes 40 \
+      --seed 2000 --workers 2 --json > results/subgoal_trust/grasp_tasks_soupN.json
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/subgoal_trust/compare.png \
+      shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF noisy41+42=results/subgoal_trust/soupN \
+      > results/subgoal_trust/compare.md
+fi

@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -293,7 +293,7 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
     arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"
-            and "soupfollow" not in option(argv, "--out")  # step 42's follows start from it too
+            and not option(argv, "--out").startswith(("runs/soupfollow", "runs/noisyfollow"))  # steps 42 and 44's follows
             and "anchor" not in option(argv, "--out")]  # and step 43's binds
     assert sorted(option(argv, "--out") for argv in arms) == ["runs/arm3_s1", "runs/arm3_s13"]
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
@@ -355,7 +355,28 @@ def test_the_anchored_groundings_are_bound_on_the_shipped_model_checked_and_the_
     assert set(grasps) == {"runs/anchor_wrist_export", "models/trivla_cpu"}
     assert _without(grasps["runs/anchor_wrist_export"], "--checkpoint") == _without(grasps["models/trivla_cpu"], "--checkpoint")
     grasping = {option(argv, "--policy"): argv for argv in calls if argv[0] == "evaluate"
-                and option(argv, "--seed") == "2000"}
+                and option(argv, "--seed") == "2000" and option(argv, "--policy") != "runs/soupN"}  # step 44's
     assert set(grasping) == {"runs/anchor_wrist_export", "models/trivla_cpu"}
     assert option(grasping["models/trivla_cpu"], "--tasks") == "lift_block,stack_block,place_in_bowl"
     assert _without(grasping["runs/anchor_wrist_export"], "--policy") == _without(grasping["models/trivla_cpu"], "--policy")
+
+
+def test_the_noisy_follows_are_step_42s_follows_with_subgoal_noise_souped_and_evaluated_as_step_42s_soups(calls):
+    """Step 44: step 42's two follows (same start, seeds, command) with --subgoal-noise 0.02 and nothing else
+    changed; their soup on seeds 1000-1017 with the six seeds' flags and on the grasping tasks at seed 2000 as
+    step 43 evaluated the shipped model there."""
+    for seed in (41, 42):
+        noisy, plain = run_writing(calls, f"runs/noisyfollow{seed}"), run_writing(calls, f"runs/soupfollow{seed}")
+        assert _without(noisy, "--out", "--subgoal-noise") == _without(plain, "--out")
+        assert option(noisy, "--subgoal-noise") == "0.02"
+    soups = {option(argv, "--out"): argv[1:argv.index("--out")] for argv in calls if argv[0] == "soup"}
+    assert soups["runs/soupN"] == ["runs/noisyfollow41/final", "runs/noisyfollow42/final"]
+    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/soupF")
+    runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/soupN"
+            and option(argv, "--tasks") is None]
+    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+    assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+    grasping = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--seed") == "2000"]
+    noisy = next(argv for argv in grasping if option(argv, "--policy") == "runs/soupN")
+    shipped = next(argv for argv in grasping if option(argv, "--policy") == "models/trivla_cpu")
+    assert _without(noisy, "--policy") == _without(shipped, "--policy")
