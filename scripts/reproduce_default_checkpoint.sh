@@ -812,7 +812,7 @@ fi
 #     compared with the shipped soup and step 42's soup of the two follows without noise.
 if [[ "${SUBGOAL_TRUST:-0}" == 1 ]]; then
   mkdir -p results/subgoal_trust
-  "${PYTHON:-python}" results/subgoal_trust/grounding_on_training_frames.py models/trivla_cpu "$MORE_DATA" \
+  "${PYTHON:-python}" results/subgoal_trust/grounding_on_training_frames.py models/trivla_cpu "$MORE_DATA" "$CARRYING" \
       > results/subgoal_trust/grounding_on_training_frames.md
   for seed in 41 42; do
     trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/noisyfollow${seed}" --init models/trivla_cpu \

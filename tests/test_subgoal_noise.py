@@ -35,8 +35,9 @@ def _batch(model: TriVLA, rows: int = 2) -> dict:
     }
 
 
-def _offset_inputs(model: TriVLA, batch: dict, noise: float) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """The sub-goal the offset encoder read and the one the grounding predicted [m] (B, 3), and the loss's info."""
+def _offset_inputs(model: TriVLA, run) -> tuple[torch.Tensor, torch.Tensor, object]:
+    """While `run()` runs: the sub-goal the offset encoder read and the one the grounding predicted [m] (B, 3)
+    of its first call; and what `run` returned."""
     read, predicted = [], []
     hook = model.policy.subgoal_offset.register_forward_hook(lambda module, args, out: read.append(args[0].detach()))
     original = model.policy._ground
@@ -48,19 +49,27 @@ def _offset_inputs(model: TriVLA, batch: dict, noise: float) -> tuple[torch.Tens
 
     model.policy._ground = ground
     try:
-        _, info = model.compute_loss(batch, generator=torch.Generator().manual_seed(1), subgoal_noise=noise)
+        result = run()
     finally:
         hook.remove()
         del model.policy._ground
-    return denormalize_position(read[0]), denormalize_position(predicted[0][:, :3]), info
+    assert len(read) == len(predicted) == 1
+    return denormalize_position(read[0]), denormalize_position(predicted[0][:, :3]), result
+
+
+def _loss_inputs(model: TriVLA, batch: dict, noise: float) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """`_offset_inputs` of one flow-matching loss with `noise` [m], and the loss's info."""
+    read, predicted, (_, info) = _offset_inputs(
+        model, lambda: model.compute_loss(batch, generator=torch.Generator().manual_seed(1), subgoal_noise=noise))
+    return read, predicted, info
 
 
 def test_the_offset_encoder_reads_the_subgoal_moved_along_x_and_y_only():
     model = _model()
     batch = _batch(model)
-    read, predicted, info = _offset_inputs(model, batch, 0.0)
+    read, predicted, info = _loss_inputs(model, batch, 0.0)
     assert torch.equal(read, predicted)
-    read, predicted, noisy_info = _offset_inputs(model, batch, 0.03)
+    read, predicted, noisy_info = _loss_inputs(model, batch, 0.03)
     moved = read - predicted
     assert (moved[:, :2].abs() > 1e-4).all() and torch.equal(moved[:, 2], torch.zeros(2))
     # the grounding's own loss reads the sub-goal as it predicted it
@@ -79,11 +88,8 @@ def test_the_noise_has_the_asked_standard_deviation_in_metres():
 
 def test_inference_reads_the_subgoal_as_predicted():
     model = _model()
-    torch.nn.init.normal_(model.policy.subgoal_offset.mlp[2].weight, std=1.0)
-    obs = example_observation()
-    first = model.predict_action_chunk(obs, seed=3)
-    model.compute_loss(_batch(model), generator=torch.Generator().manual_seed(1), subgoal_noise=0.05)
-    np.testing.assert_array_equal(model.predict_action_chunk(obs, seed=3), first)
+    read, predicted, _ = _offset_inputs(model, lambda: model.predict_action_chunk(example_observation(), seed=3))
+    assert torch.equal(read, predicted)
 
 
 def test_noise_on_a_model_without_an_offset_encoder_is_refused():
@@ -97,10 +103,22 @@ def test_noise_on_a_model_without_an_offset_encoder_is_refused():
 def test_bad_settings_are_refused_naming_the_field(tmp_path):
     follow = dict(stage="policy", data=str(tmp_path), out=str(tmp_path / "o"), grounding_weight=1.0,
                   grounding_phase="follow", subgoal_offset=True, init=str(tmp_path / "init"))
-    TrainConfig(**follow, subgoal_noise=0.02).resolved().validate()
+    for phase in ("follow", "joint"):
+        TrainConfig(**{**follow, "grounding_phase": phase}, subgoal_noise=0.02).resolved().validate()
     for bad in (-0.01, float("nan"), float("inf"), 0.5):
         with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\) is a standard deviation in metres"):
             TrainConfig(**follow, subgoal_noise=bad).resolved().validate()
-    for change in (dict(subgoal_offset=False), dict(grounding_phase="bind")):
-        with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\).*needs --subgoal-offset"):
+    no_grounding = dict(grounding_weight=0.0, subgoal_offset=False, grounding_phase="joint")
+    for change in (dict(grounding_phase="bind"), no_grounding):
+        with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\).*a joint or follow run"):
             TrainConfig(**{**follow, **change}, subgoal_noise=0.02).resolved().validate()
+
+
+def test_a_fresh_model_without_an_offset_encoder_is_refused_before_training(tmp_path):
+    from trivla_drake.train.trainer import build_model
+
+    config = TrainConfig(stage="policy", data=str(tmp_path), out=str(tmp_path / "o"), preset="tiny", grounding_weight=1.0,
+                         subgoal_noise=0.02).resolved()
+    with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\).*preset 'tiny' has none.*--subgoal-offset"):
+        build_model(config, None)
+    assert build_model(dataclasses.replace(config, subgoal_offset=True), None).policy.subgoal_offset is not None

@@ -398,6 +398,11 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
                       **runs["common"]))
     monkeypatch.undo()
     assert seen == [0.02, 0.02]
+    # the offset encoder may come from --init; a model with none is refused before training
+    noisy = dataclasses.replace(again, grounding_phase="follow", subgoal_noise=0.02)
+    with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\).*--init checkpoint.*has none"):
+        build_model(noisy, None)
+    assert build_model(dataclasses.replace(noisy, init=offset["final_checkpoint"]), None).policy.subgoal_offset is not None
     # --subgoal-yaw: a bind run adds a yaw head to the grounding it keeps and trains it on the dataset's yaw
     # labels; a follow run from it trains System 1's yaw encoder; a follow run cannot add the head
     yaw_bind = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "yaw_bind"), init=bound["final_checkpoint"],

@@ -1,11 +1,11 @@
 """How far the instruction grounding's sub-goal lies from its label on the frames System 1 trains on
 (results/subgoal_trust/, run from the repository root):
 
-    python results/subgoal_trust/grounding_on_training_frames.py CHECKPOINT DATA [SAMPLES]
+    python results/subgoal_trust/grounding_on_training_frames.py CHECKPOINT DATA CARRY_TASKS [SAMPLES]
 
 Builds the follow run's dataset from the feature cache (as `train --stage policy --feature-stride 3
---vl-position-embedding --grounding-weight 1 --grounding-phase follow --subgoal-offset` does), draws SAMPLES
-frames (default 3000, seed 0) and prints the median and 90th percentile of the sub-goal's x-y error, and the
+--vl-position-embedding --grounding-weight 1 --grounding-phase follow --grounding-carry CARRY_TASKS
+--subgoal-offset` does), draws SAMPLES frames (default 3000, seed 0) and prints the median and 90th percentile of the sub-goal's x-y error, and the
 median height error, on the grounding's own frames (before the first gripper change, and the carrying frames of
 the --grounding-carry tasks) and on the rest."""
 import argparse
@@ -22,16 +22,14 @@ from trivla_drake.train.cli_commands import add_train_parser, config_from_args
 from trivla_drake.train.config import default_cache_dir
 from trivla_drake.train.distributed import DistEnv
 
-CARRY = "stack_block,place_in_bowl,unstack_block,rotate_block_left,rotate_block_right"
 
-
-def main(checkpoint: str, data: str, samples: int) -> None:
+def main(checkpoint: str, data: str, carry: str, samples: int) -> None:
     torch.set_num_threads(2)
     parser = argparse.ArgumentParser()
     add_train_parser(parser.add_subparsers())
     args = parser.parse_args(["train", "--stage", "policy", "--feature-stride", "3", "--vl-position-embedding",
                               "--grounding-weight", "1", "--data", data, "--out", "unused", "--init", checkpoint,
-                              "--grounding-phase", "follow", "--grounding-carry", CARRY, "--subgoal-offset"])
+                              "--grounding-phase", "follow", "--grounding-carry", carry, "--subgoal-offset"])
     config = config_from_args(args)
     config = dataclasses.replace(config, preset=trainer._resolve_preset(config),
                                  cache_dir=config.cache_dir or default_cache_dir())
@@ -42,11 +40,8 @@ def main(checkpoint: str, data: str, samples: int) -> None:
     with torch.no_grad():
         for start in range(0, len(rows), 64):
             batch = collate([dataset[int(i)] for i in rows[start:start + 64]])
-            state = batch["state"].float()
-            tcp = model.tcp_features(state) if model.policy.grounding_reads_tcp else None
-            gripper = model._gripper_for_grounding(state)
-            predicted = denormalize_position(model.policy.predict_subgoal(batch["q_vl"].float(), batch.get("q_vl_mask"),
-                                                                          tcp, gripper)[:, :3])
+            subgoal = model.subgoal_of_features(batch["q_vl"].float(), batch.get("q_vl_mask"), batch["state"].float())
+            predicted = denormalize_position(subgoal[:, :3])
             error = predicted - batch["subgoal_position"]
             xy.append(error[:, :2].norm(dim=1).numpy())
             dz.append(error[:, 2].abs().numpy())
@@ -61,4 +56,4 @@ def main(checkpoint: str, data: str, samples: int) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 3000)
+    main(sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 3000)

@@ -283,9 +283,9 @@ class TriVLA(nn.Module):
         if self.policy.subgoal_offset is None:
             raise ValueError("subgoal_noise moves the sub-goal System 1's offset encoder reads: this model has none "
                              "(policy.subgoal_offset is off)")
-        shift = torch.zeros(batch, 3, device=self.device)
-        shift[:, :2] = torch.randn(batch, 2, generator=generator, device=self.device) * noise
-        return normalize_displacement(shift)
+        shift = torch.zeros(batch, 3)
+        shift[:, :2] = torch.randn(batch, 2, generator=generator) * noise  # the trainer's generator is a CPU one
+        return normalize_displacement(shift).to(self.device)
 
     def _gripper_for_grounding(self, state: torch.Tensor | None) -> torch.Tensor | None:
         """The gripper's closure (B, 1) of unnormalised states when System 1's grounding reads it
@@ -619,19 +619,27 @@ class TriVLA(nn.Module):
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         with torch.no_grad():
             q_vl, q_vl_mask = self._batch_q_vl(batch)
-        tcp = gripper = None
         pol = self.config.policy
         for reads, field, what in ((self.policy.grounding_reads_tcp,
                                     "grounding_reads_tcp / grounding_anchor_wrist_camera", "the tool-centre point"),
                                    (pol.grounding_reads_gripper, "grounding_reads_gripper", "the gripper's closure")):
             if reads and "state" not in batch:
                 raise ValueError(f"batch is missing 'state': this grounding reads {what} (policy.{field})")
-        if self.policy.grounding_reads_tcp:
-            tcp = self.tcp_features(self._batch_tensor(batch, "state")).to(q_vl.dtype)
-        if pol.grounding_reads_gripper:
-            gripper = self._gripper_for_grounding(self._batch_tensor(batch, "state")).to(q_vl.dtype)
-        loss = self._subgoal_loss(batch, self.policy.predict_subgoal(q_vl, q_vl_mask, tcp, gripper))
+        state = self._batch_tensor(batch, "state") if "state" in batch else None
+        loss = self._subgoal_loss(batch, self.subgoal_of_features(q_vl, q_vl_mask, state))
         return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
+
+    def subgoal_of_features(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None,
+                            state: torch.Tensor | None) -> torch.Tensor:
+        """The instruction grounding's raw sub-goal (B, 3) or (B, 5) (see `predict_subgoal`) of precomputed Q_vl
+        (B, S, D_llm) with its mask (B, S) or None, and unnormalised robot states (B, state_dim), read when the
+        grounding reads the tool-centre point or the gripper (else may be None)."""
+        tcp = gripper = None
+        if self.policy.grounding_reads_tcp:
+            tcp = self.tcp_features(state).to(q_vl.dtype)
+        if self.config.policy.grounding_reads_gripper:
+            gripper = self._gripper_for_grounding(state).to(q_vl.dtype)
+        return self.policy.predict_subgoal(q_vl, q_vl_mask, tcp, gripper)
 
     def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A batch's Q_vl and its mask: precomputed "q_vl" (+ optional "q_vl_mask"), or System 2 run on

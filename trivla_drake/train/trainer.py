@@ -271,7 +271,7 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow":
             raise ValueError("grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              "--init checkpoint: pass --init with a --grounding-phase bind run's checkpoint")
-        return TriVLA(fresh_model_config(config))
+        return check_subgoal_noise(config, TriVLA(fresh_model_config(config)), f"preset {config.preset!r}")
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
@@ -283,9 +283,18 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
                          f"layer (select_layer {vl_config.select_layer}), so the vlm stage would train the "
                          f"answers on Q_vl itself; start from the checkpoint it was exported from "
                          f"(export without --drop-unused-llm-layers)")
+    check_subgoal_noise(config, model, where)
     if model.config.policy.tcp_features != config.tcp_features:
         raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
                          f"{config.tcp_features} (--no-tcp-features)")
+    return model
+
+
+def check_subgoal_noise(config: TrainConfig, model: TriVLA, where: str) -> TriVLA:
+    """`model`, or ValueError naming --subgoal-noise when the run asks for it and the model has no offset encoder."""
+    if config.subgoal_noise and model.policy.subgoal_offset is None:
+        raise ValueError(f"subgoal_noise (--subgoal-noise) moves the sub-goal System 1's offset encoder reads, and "
+                         f"the {where} has none: add one with --subgoal-offset")
     return model
 
 
