@@ -393,10 +393,8 @@ class TriVLA(nn.Module):
                              "(policy.grounding_reads_gripper)")
         state = check_state("state", np.zeros(pol.state_dim) if state is None else state, pol.state_dim)
         q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
-        state_row = torch.from_numpy(state)[None].to(self.device)
-        tcp = self.tcp_features(state_row).float() if self.policy.grounding_reads_tcp else None
-        subgoal = self.policy.predict_subgoal(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None],
-                                              tcp=tcp, gripper=self._gripper_for_grounding(state_row))
+        subgoal = self.subgoal_of_features(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None], None,
+                                           torch.from_numpy(state)[None].to(self.device))
         return subgoal[0].double().cpu()
 
     @torch.inference_mode()

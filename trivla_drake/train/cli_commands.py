@@ -258,7 +258,8 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "
                              "has none)")
     parser.add_argument("--subgoal-noise", type=float, default=0.0, metavar="METRES",
-                        help="policy, with --subgoal-offset: during training, move the sub-goal System 1 reads by "
+                        help="policy follow or joint run, on a System 1 with a sub-goal offset (--subgoal-offset or "
+                             "--init's): during training, move the sub-goal it reads by "
                              "Gaussian noise of this standard deviation along x and y, so it learns to trust the "
                              "grounding as far as it holds on unseen scenes (inference is unchanged; default 0)")
     parser.add_argument("--subgoal-yaw", action="store_true",

@@ -215,7 +215,7 @@ class TrainConfig:
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
-    # policy stage, with subgoal_offset, not in a bind run: the sub-goal System 1's offset encoder reads during
+    # policy stage, joint or follow run: the sub-goal System 1's offset encoder reads during
     # training is moved by Gaussian noise of this standard deviation [m] along x and along y (not in height),
     # drawn afresh for every sample; inference reads the grounding's sub-goal as it is. The model needs an offset
     # encoder (this run's subgoal_offset, or --init's). On its training frames the shipped grounding's sub-goal

@@ -271,7 +271,9 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow":
             raise ValueError("grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              "--init checkpoint: pass --init with a --grounding-phase bind run's checkpoint")
-        return check_subgoal_noise(config, TriVLA(fresh_model_config(config)), f"preset {config.preset!r}")
+        model = TriVLA(fresh_model_config(config))
+        check_subgoal_noise(config, model, f"preset {config.preset!r}")
+        return model
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
@@ -290,12 +292,11 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
     return model
 
 
-def check_subgoal_noise(config: TrainConfig, model: TriVLA, where: str) -> TriVLA:
-    """`model`, or ValueError naming --subgoal-noise when the run asks for it and the model has no offset encoder."""
+def check_subgoal_noise(config: TrainConfig, model: TriVLA, where: str) -> None:
+    """ValueError naming --subgoal-noise when the run asks for it and `model` has no offset encoder."""
     if config.subgoal_noise and model.policy.subgoal_offset is None:
         raise ValueError(f"subgoal_noise (--subgoal-noise) moves the sub-goal System 1's offset encoder reads, and "
                          f"the {where} has none: add one with --subgoal-offset")
-    return model
 
 
 def check_grounding(reader, grounding_weight: float, where: str) -> None:
