@@ -233,6 +233,24 @@ def test_dense_loss_trains_the_vision_tower_and_names_bad_labels():
         model.compute_vlm_loss({**batch, "block_labels": labels[:, :1]}, dense_weight=1.0)
     with pytest.raises(ValueError, match="dense_weight must be >= 0"):
         model.compute_vlm_loss(batch, dense_weight=-1.0)
+    # answer_weight weighs the next-token loss; 0 leaves the dense loss alone and never runs the LLM
+    half, half_info = model.compute_vlm_loss(batch, dense_weight=0.5, answer_weight=0.25)
+    assert half.item() == pytest.approx(0.25 * half_info["vlm_loss"] + 0.5 * half_info["dense_loss"], rel=1e-5)
+    model.zero_grad()
+    llm_forward = vl.llm.forward
+    vl.llm.forward = None  # calling the LLM would fail
+    try:
+        alone, alone_info = model.compute_vlm_loss(batch, dense_weight=0.5, answer_weight=0.0)
+    finally:
+        vl.llm.forward = llm_forward
+    assert "vlm_loss" not in alone_info and alone.item() == pytest.approx(0.5 * info["dense_loss"], rel=1e-5)
+    alone.backward()
+    assert next(vl.vision_encoder.parameters()).grad.abs().sum() > 0
+    assert all(p.grad is None for p in vl.llm.parameters())
+    with pytest.raises(ValueError, match="answer_weight 0 .* needs dense_weight > 0"):
+        model.compute_vlm_loss(batch, answer_weight=0.0)
+    with pytest.raises(ValueError, match="answer_weight must be >= 0"):
+        model.compute_vlm_loss(batch, dense_weight=1.0, answer_weight=-1.0)
     with pytest.raises(ValueError, match="dense_classes is 0"):
         TriVLA(make_config("tiny", use_system3=False)).compute_vlm_loss(batch, dense_weight=1.0)
     with pytest.raises(ValueError, match="dense_classes"):

@@ -483,6 +483,36 @@ def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, t
     assert len(load_checkpoint(summary["final_checkpoint"]).vision_language.llm.model.layers) == 1
 
 
+def test_vlm_stage_trains_the_dense_loss_alone_on_a_trimmed_export(runs, tmp_path):
+    """--answer-weight 0: the vlm stage goes on from an export without its upper LLM layers, training
+    System 2's image tokens by the dense loss alone; the LLM is frozen (and not run), the answers are
+    not scored, and the flag is refused where it means nothing."""
+    from trivla_drake.train.checkpoints import export_checkpoint
+
+    trimmed = export_checkpoint(runs["vlm"]["final_checkpoint"], tmp_path / "trimmed", drop_unused_llm_layers=True)
+    with pytest.raises(ValueError, match="or train the dense loss alone \\(--answer-weight 0\\)"):
+        train(TrainConfig(stage="vlm", out=str(tmp_path / "v"), init=str(trimmed), steps=1, vqa_scenes=10,
+                          vqa_questions_per_scene=4, vqa_eval_questions=0, dense_weight=1.0, **runs["common"]))
+    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "dense"), init=str(trimmed), steps=3, vqa_scenes=10,
+                                vqa_questions_per_scene=4, dense_weight=1.0, answer_weight=0.0, **runs["common"]))
+    before, after = load_checkpoint(trimmed), load_checkpoint(summary["final_checkpoint"])
+    assert len(after.vision_language.llm.model.layers) == 1 and after.vision_language.block_head is not None
+    assert _same(_weights(before, "vision_language.llm."), _weights(after, "vision_language.llm."))
+    assert not _same(_weights(before, "vision_language.vision_encoder."),
+                     _weights(after, "vision_language.vision_encoder."))
+    assert _same(_weights(before, "policy."), _weights(after, "policy."))
+    logged = _rows(tmp_path / "dense")
+    assert len(logged) == 3 and all("vlm_loss" not in row and row["loss"] == pytest.approx(row["dense_loss"])
+                                     for row in logged)
+    assert not any(key.startswith("vqa_") and key != "vqa_folder" for key in summary)  # no answers to score
+    with pytest.raises(ValueError, match="answer_weight \\(--answer-weight\\) 0 .* needs dense_weight"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), answer_weight=0.0).resolved().validate()
+    with pytest.raises(ValueError, match="answer_weight \\(--answer-weight\\) must be a finite number >= 0"):
+        TrainConfig(stage="vlm", out=str(tmp_path / "v"), answer_weight=float("nan")).resolved().validate()
+    with pytest.raises(ValueError, match="answer_weight .*not the policy stage"):
+        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), answer_weight=0.5).resolved().validate()
+
+
 def test_a_fresh_vlm_run_builds_every_llm_layer_of_a_preset_that_drops_them(tmp_path):
     """The paper preset builds its LLM only up to the read-out layer (Q_vl needs no more); a fresh
     vlm run reads its answers from the last layer, so it builds them all. Configs only: no weights."""

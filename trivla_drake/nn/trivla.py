@@ -714,18 +714,24 @@ class TriVLA(nn.Module):
         return list(torch.split(scores, [len(c) for c in candidates]))
 
     def compute_vlm_loss(
-        self, batch: Mapping[str, Any], *, weighting: str = "token", dense_weight: float = 0.0
+        self, batch: Mapping[str, Any], *, weighting: str = "token", dense_weight: float = 0.0,
+        answer_weight: float = 1.0,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
         (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. `weighting`:
         "token" (mean over the batch's answer tokens) or "answer" (each answer weighs the same).
         With `dense_weight` > 0, plus that times the dense loss of System 2's block head on the same
         image tokens, against "block_labels" uint8 (B, 2, H, W) (static, wrist; 0 nothing, 1 + k
-        block k). Returns (loss, info)."""
+        block k). `answer_weight` weighs the next-token loss; 0 leaves it out (the LLM is not run, so
+        an LLM trimmed at its read-out layer trains too; it needs `dense_weight` > 0). Returns (loss, info)."""
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
         if not dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {dense_weight}")
+        if not answer_weight >= 0:
+            raise ValueError(f"answer_weight must be >= 0; got {answer_weight}")
+        if not (answer_weight or dense_weight):
+            raise ValueError("answer_weight 0 leaves the dense loss alone: it needs dense_weight > 0")
         for key in ("static_rgb", "wrist_rgb", "instruction", "answer") + (("block_labels",) if dense_weight else ()):
             if key not in batch:
                 raise ValueError(f"batch is missing {key!r}")
@@ -746,9 +752,13 @@ class TriVLA(nn.Module):
             if labels.dtype != torch.uint8 or tuple(labels.shape) != (images.shape[0], 2) + tuple(images.shape[2:4]):
                 raise ValueError(f"batch['block_labels'] must be uint8 {(images.shape[0], 2) + tuple(images.shape[2:4])}; "
                                  f"got {labels.dtype} {tuple(labels.shape)}")
-        loss, dense = self.vision_language.vlm_losses(images, ids, answers, weighting=weighting, block_labels=labels)
-        info = {"vlm_loss": float(loss.detach())}
+        loss, dense = self.vision_language.vlm_losses(images, ids, answers, weighting=weighting, block_labels=labels,
+                                                      with_answers=bool(answer_weight))
+        info = {}
+        if loss is not None:
+            info["vlm_loss"] = float(loss.detach())
+            loss = answer_weight * loss
         if dense is not None:
             info["dense_loss"] = float(dense.detach())
-            loss = loss + dense_weight * dense
+            loss = dense_weight * dense if loss is None else loss + dense_weight * dense
         return loss, info

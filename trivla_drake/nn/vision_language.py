@@ -257,8 +257,8 @@ class VisionLanguageModule(nn.Module):
 
     def vlm_losses(
         self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token",
-        block_labels: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        block_labels: torch.Tensor | None = None, with_answers: bool = True,
+    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
         """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining).
 
         `weighting` "token": the mean over every answer token of the batch, so a long caption weighs
@@ -266,11 +266,14 @@ class VisionLanguageModule(nn.Module):
         one-word colour or yes/no answer weighs as much as a caption (`VLM_LOSS_WEIGHTINGS`).
 
         With `block_labels` (B, V, S, S) also the dense loss of the same image tokens
-        (`dense_block_loss`), else None. Returns (LM loss, dense loss)."""
+        (`dense_block_loss`), else None. `with_answers` False skips the LLM (its loss is None): the
+        dense loss alone, which an LLM trimmed at the read-out layer can train too. Returns (LM loss, dense loss)."""
         check_vlm_loss_weighting(weighting)
         batch, views = images.shape[:2]
         flat = self.encode_images(images.flatten(0, 1))
         dense = None if block_labels is None else self.dense_block_loss(flat, block_labels.flatten(0, 1))
+        if not with_answers:
+            return None, dense
         tokens = flat.unflatten(0, (batch, views))
         prompts = self.build_prompts(instruction_ids, views, answers)
         embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)

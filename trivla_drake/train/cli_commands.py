@@ -82,6 +82,7 @@ def config_from_args(args: argparse.Namespace):
         vl_position_embedding=args.vl_position_embedding,
         dense_weight=args.dense_weight,
         dense_subcells=args.dense_subcells,
+        answer_weight=args.answer_weight,
         grounding_weight=args.grounding_weight,
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
@@ -204,6 +205,10 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="vlm, with --dense-weight: split each image token's cell into N x N sub-cells "
                              "whose blocks the dense loss asks for, so the tokens say where in their cell a "
                              "block lies (default: as --init's head has them; 1, the whole cell, for a new head)")
+    parser.add_argument("--answer-weight", type=float, default=1.0,
+                        help="vlm: weight of the next-token loss on the answers; 0 trains System 2's image tokens "
+                             "by the dense loss alone (needs --dense-weight), with its LLM frozen and not run, so "
+                             "an --init exported with --drop-unused-llm-layers (e.g. models/trivla_cpu) can go on")
     parser.add_argument("--vl-position-embedding", action="store_true",
                         help="policy: give System 1 a learned embedding of System 2's token positions, so it "
                              "knows where in the image a token it reads lies (added when --init has none)")

@@ -167,6 +167,10 @@ class TrainConfig:
     # (`VisionLanguageConfig.dense_subcells`); a starting head with others is replaced by a fresh one.
     # None: as the --init model has them (1 for a fresh model or one without a head).
     dense_subcells: int | None = None
+    # vlm stage: weight of the next-token loss on the answers. 0 trains System 2 by the dense loss alone
+    # (needs dense_weight > 0): its LLM is not run and stays frozen, so a System 2 exported with
+    # --drop-unused-llm-layers (an LLM that ends at the read-out layer) can train its image tokens on.
+    answer_weight: float = 1.0
     # policy stage: give System 1 an embedding of Q_vl's token positions
     # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
     vl_position_embedding: bool = False
@@ -397,6 +401,14 @@ class TrainConfig:
             raise ValueError(f"dense_subcells must be >= 1; got {self.dense_subcells}")
         if self.dense_subcells is not None and not self.dense_weight:
             raise ValueError("dense_subcells (--dense-subcells) shapes the dense loss's targets: it needs "
+                             "dense_weight (--dense-weight) > 0")
+        if not (math.isfinite(self.answer_weight) and self.answer_weight >= 0):
+            raise ValueError(f"answer_weight (--answer-weight) must be a finite number >= 0; got {self.answer_weight}")
+        if self.answer_weight != 1.0 and self.stage != "vlm":
+            raise ValueError("answer_weight (--answer-weight) weighs the vlm stage's next-token loss; "
+                             f"not the {self.stage} stage")
+        if self.answer_weight == 0 and not self.dense_weight:
+            raise ValueError("answer_weight (--answer-weight) 0 trains System 2 by the dense loss alone: it needs "
                              "dense_weight (--dense-weight) > 0")
         if self.dense_weight and self.stage != "vlm":
             raise ValueError("dense_weight (--dense-weight) weighs a loss of the vlm stage, which trains System 2; "

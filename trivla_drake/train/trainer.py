@@ -280,11 +280,13 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         raise ValueError(f"{where} has use_system2/3 = {model.config.use_system2}/{model.config.use_system3}, "
                          f"the run asks {config.use_system2}/{config.use_system3}")
     vl_config = model.config.vision_language
-    if config.stage == "vlm" and model.vision_language is not None and vl_config.drop_unused_llm_layers:
+    if (config.stage == "vlm" and model.vision_language is not None and vl_config.drop_unused_llm_layers
+            and config.answer_weight):
         raise ValueError(f"{where} has vision_language.drop_unused_llm_layers: its LLM ends at the read-out "
                          f"layer (select_layer {vl_config.select_layer}), so the vlm stage would train the "
                          f"answers on Q_vl itself; start from the checkpoint it was exported from "
-                         f"(export without --drop-unused-llm-layers)")
+                         f"(export without --drop-unused-llm-layers), or train the dense loss alone "
+                         f"(--answer-weight 0)")
     check_subgoal_noise(config, model, where)
     if model.config.policy.tcp_features != config.tcp_features:
         raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
@@ -327,18 +329,19 @@ class StageLoss(nn.Module):
 
     def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
                  dense_weight: float = 0.0, grounding_weight: float = 0.0, grounding_phase: str = "joint",
-                 subgoal_noise: float = 0.0) -> None:
+                 subgoal_noise: float = 0.0, answer_weight: float = 1.0) -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
         self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
         self.grounding_weight, self.grounding_phase = grounding_weight, grounding_phase
-        self.subgoal_noise = subgoal_noise
+        self.subgoal_noise, self.answer_weight = subgoal_noise, answer_weight
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
-            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight)
+            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight,
+                                               answer_weight=self.answer_weight)
         if self.grounding_phase == "bind":
             return self.model.compute_grounding_loss(batch)
         return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight,
@@ -581,6 +584,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             p.requires_grad_(name in trained_in_bind if config.grounding_phase == "bind" else name not in binding)
     if config.stage == "vlm" and model.vision_language.block_head is not None and not config.dense_weight:
         model.vision_language.block_head.requires_grad_(False)  # no dense loss: the head gets no gradient
+    if config.stage == "vlm" and not config.answer_weight:
+        model.vision_language.llm.requires_grad_(False)  # the dense loss alone: the LLM is not run
     model.to(env.device)
     model.eval()
     trained.train()
@@ -626,7 +631,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             raise ValueError(f"cannot resume {resume_from}: it holds no weight average")
         average.load_state_dict(train_state["weight_average"])  # and the trained weights back into the model
     loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
-                            config.grounding_weight, config.grounding_phase, config.subgoal_noise)
+                            config.grounding_weight, config.grounding_phase, config.subgoal_noise, config.answer_weight)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(
@@ -709,7 +714,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         "step_time_s": float(np.median(step_times[1:] or step_times)) if step_times else None,
         **data_summary,
     }
-    if config.stage == "vlm" and env.is_main and config.vqa_eval_questions > 0:
+    if config.stage == "vlm" and env.is_main and config.vqa_eval_questions > 0 and config.answer_weight:
         from trivla_drake.train import vqa
 
         eval_started = time.time()
