@@ -827,3 +827,22 @@ if [[ "${SUBGOAL_TRUST:-0}" == 1 ]]; then
       shipped=results/model_soup/soup3 follows41+42=results/soup_follow/soupF noisy41+42=results/subgoal_trust/soupN \
       > results/subgoal_trust/compare.md
 fi
+# 45. Optional (SYSTEM2_SCENES=1; results/system2_scenes/): does System 2 place the blocks more precisely when its image
+#     tokens see ten times the scenes? From the shipped model, 1500 more vlm steps by the dense loss alone
+#     (--answer-weight 0) on 5000 VQA scenes (the shipped System 2 saw the default 500): once with the shipped
+#     head's 4 x 4 sub-cells (lr 1e-4), once with a new head on 7 x 7 sub-cells (4 px; lr 2e-4). Each probed next to
+#     the shipped model on the first frames of DATA's 360 clean episodes.
+if [[ "${SYSTEM2_SCENES:-0}" == 1 ]]; then
+  mkdir -p results/system2_scenes
+  VLM_SCENES=(train --stage vlm --init models/trivla_cpu --dense-weight 1 --answer-weight 0 --vqa-scenes 5000
+              --steps 1500 --batch-size 16 --threads 2)
+  trivla-drake "${VLM_SCENES[@]}" --lr 1e-4 --out "$RUNS/s2more"
+  trivla-drake "${VLM_SCENES[@]}" --lr 2e-4 --dense-subcells 7 --out "$RUNS/s2sub7"
+  for checkpoint in models/trivla_cpu "$RUNS/s2more/final" "$RUNS/s2sub7/final"; do
+    name=$(basename "$(dirname "$checkpoint")")
+    [[ "$checkpoint" == models/trivla_cpu ]] && name=shipped
+    "${PYTHON:-python}" results/subcell_dense/s2_probe.py "$checkpoint" "$DATA" 360 1500 \
+        "results/system2_scenes/probe_$name.json"
+  done
+  "${PYTHON:-python}" results/system2_scenes/plot_probes.py
+fi

@@ -37,7 +37,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1",
            "PYTHON": "true"}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -294,7 +294,8 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert _forty_chain_seeds(after, "models/trivla_cpu") == ["1003", "1004"]
     arms = [argv for argv in after if argv[0] == "train" and option(argv, "--init") == "models/trivla_cpu"
             and not option(argv, "--out").startswith(("runs/soupfollow", "runs/noisyfollow"))  # steps 42 and 44's follows
-            and "anchor" not in option(argv, "--out")]  # and step 43's binds
+            and "anchor" not in option(argv, "--out")  # and step 43's binds
+            and option(argv, "--stage") == "policy"]  # and step 45's System 2 runs
     assert sorted(option(argv, "--out") for argv in arms) == ["runs/arm3_s1", "runs/arm3_s13"]
     tables = [argv for argv in after if argv[0] == "tables" and option(argv, "--full") == "models/trivla_cpu"]
     assert [option(argv, "--out") for argv in tables] == ["results", "results/data_efficiency"]
@@ -380,3 +381,15 @@ def test_the_noisy_follows_are_step_42s_follows_with_subgoal_noise_souped_and_ev
     noisy = next(argv for argv in grasping if option(argv, "--policy") == "runs/soupN")
     shipped = next(argv for argv in grasping if option(argv, "--policy") == "models/trivla_cpu")
     assert _without(noisy, "--policy") == _without(shipped, "--policy")
+
+
+def test_the_system2_scene_runs_train_the_shipped_models_image_tokens_on_ten_times_the_scenes_by_the_dense_loss(calls):
+    """Step 45: two vlm runs from the shipped model on 5000 VQA scenes, the dense loss alone (the answers' weight 0),
+    that differ only in their learning rate and in the 7 x 7 sub-cells of the second one's new head."""
+    same_head, finer = run_writing(calls, "runs/s2more"), run_writing(calls, "runs/s2sub7")
+    for run in (same_head, finer):
+        assert option(run, "--stage") == "vlm" and option(run, "--init") == "models/trivla_cpu"
+        assert option(run, "--answer-weight") == "0" and option(run, "--dense-weight") == "1"
+        assert option(run, "--vqa-scenes") == "5000"
+    assert option(same_head, "--dense-subcells") is None and option(finer, "--dense-subcells") == "7"
+    assert _without(finer, "--out", "--lr", "--dense-subcells") == _without(same_head, "--out", "--lr")
