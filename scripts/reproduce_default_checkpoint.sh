@@ -831,7 +831,8 @@ fi
 #     tokens see ten times the scenes? From the shipped model, 1500 more vlm steps by the dense loss alone
 #     (--answer-weight 0) on 5000 VQA scenes (the shipped System 2 saw the default 500): once with the shipped
 #     head's 4 x 4 sub-cells (lr 1e-4), once with a new head on 7 x 7 sub-cells (4 px; lr 2e-4). Each probed next to
-#     the shipped model on the first frames of DATA's 360 clean episodes.
+#     the shipped model on the first frames of DATA's 360 clean episodes. (The two runs' loss.png and summary.json
+#     went to results/system2_scenes/vlm_RUN.*, not results/training/.)
 if [[ "${SYSTEM2_SCENES:-0}" == 1 ]]; then
   mkdir -p results/system2_scenes
   VLM_SCENES=(train --stage vlm --init models/trivla_cpu --dense-weight 1 --answer-weight 0 --vqa-scenes 5000
