@@ -733,6 +733,7 @@ fi
 mkdir -p results/model_soup
 trivla-drake soup "$RUNS/heldall2_follow/final" "$RUNS/heldall2b_follow/final" "$RUNS/heldall3_follow/final" \
     --out models/trivla_cpu --drop-unused-llm-layers
+rm -rf "$RUNS/soup3" && cp -r models/trivla_cpu "$RUNS/soup3"  # step 46 re-fits this copy into models/trivla_cpu
 EVAL_SEEDS="1000 1001 1002 1003 1004 1005 1006 1007 1008 1009 1010 1011" six_seeds models/trivla_cpu \
     results/model_soup/soup3
 forty_chains models/trivla_cpu results/model_soup/soup3
@@ -847,3 +848,20 @@ if [[ "${SYSTEM2_SCENES:-0}" == 1 ]]; then
   done
   "${PYTHON:-python}" results/system2_scenes/plot_probes.py
 fi
+# 46. The shipped checkpoint (results/grounding_scenes/): step 41's soup with its instruction grounding's read-out
+#     re-fitted on 12000 rendered scenes of unseen layouts (the six tasks whose first gripper event is a grasp; half
+#     with the arm at its start, half along the oracle's approach; labelled with where the plan closes the gripper)
+#     mixed half and half with DATA's grounding frames, 1500 steps (results/grounding_scenes/refit_grounding.py;
+#     only the read-out trains, so System 1 needs no follow). Its sub-goal on 600 other rendered scenes; the
+#     grounding check along the oracle's approach; eighteen seeds (1000-1017) and the 120 grasping scenes, compared
+#     with the soup. (Step 41 keeps a copy of the soup in RUNS/soup3; the re-fit reads it and writes models/trivla_cpu.)
+mkdir -p results/grounding_scenes
+"${PYTHON:-python}" results/grounding_scenes/refit_grounding.py "$RUNS/soup3" "$DATA" models/trivla_cpu \
+    --scenes 12000 --steps 1500 --lr 3e-4 --report results/grounding_scenes/refit
+trivla-drake probe --checkpoint models/trivla_cpu --grounding-scenes 20 --threads 2 \
+    > results/grounding_scenes/grounding_check_refit.md
+trivla-drake evaluate --policy models/trivla_cpu --tasks lift_block,stack_block,place_in_bowl --episodes 40 \
+    --seed 2000 --workers 2 --json > results/grounding_scenes/grasp_tasks_refit.json
+EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds models/trivla_cpu results/grounding_scenes/refit
+"${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_scenes/compare.png \
+    shipped=results/model_soup/soup3 refit=results/grounding_scenes/refit > results/grounding_scenes/compare.md

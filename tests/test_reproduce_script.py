@@ -15,20 +15,29 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_default_ch
 
 
 @pytest.fixture(scope="module")
-def calls(tmp_path_factory) -> list[list[str]]:
-    """Each `trivla-drake` call of one dry run of the script (run once: it records a few hundred calls)."""
+def every_call(tmp_path_factory) -> list[list[str]]:
+    """Each call of one dry run of the script, in order: `trivla-drake`'s arguments, and a results script's
+    as ["python", script, ...] (run once: it records a few hundred calls)."""
     return _dry_run(tmp_path_factory.mktemp("reproduce"))
 
 
+@pytest.fixture(scope="module")
+def calls(every_call) -> list[list[str]]:
+    """Each `trivla-drake` call of the dry run."""
+    return [argv for argv in every_call if argv[0] != "python"]
+
+
 def _dry_run(tmp_path: Path) -> list[list[str]]:
-    """Run the script with `trivla-drake` replaced by a recorder; returns each call's arguments."""
+    """Run the script with `trivla-drake` and its Python replaced by recorders; returns each call's arguments."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     calls = tmp_path / "calls.txt"
-    recorder = bin_dir / "trivla-drake"
-    recorder.write_text(f'#!/usr/bin/env bash\n{shlex.quote(sys.executable)} -c '
-                        f'"import shlex, sys; print(shlex.join(sys.argv[1:]))" "$@" >> {shlex.quote(str(calls))}\n')
-    recorder.chmod(0o755)
+    for name, prefix in (("trivla-drake", ""), ("python-recorder", "python ")):
+        recorder = bin_dir / name
+        recorder.write_text(f'#!/usr/bin/env bash\n{shlex.quote(sys.executable)} -c '
+                            f'"import shlex, sys; print({prefix!r} + shlex.join(sys.argv[1:]))" "$@" '
+                            f'>> {shlex.quote(str(calls))}\n')
+        recorder.chmod(0o755)
     work = tmp_path / "work"
     (work / "results").mkdir(parents=True)
     (work / "data").mkdir()
@@ -38,9 +47,10 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1",
-           "PYTHON": "true"}
+           "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
+    (work / "models" / "trivla_cpu").mkdir(parents=True)  # step 41 copies the soup it wrote
     subprocess.run(["bash", str(SCRIPT)], cwd=work, env=env, check=True, capture_output=True, text=True)
     return [shlex.split(line) for line in calls.read_text().splitlines()]
 
@@ -268,11 +278,17 @@ def test_the_fresh_seeds_evaluate_step_29s_model_and_the_held_lineage_on_seeds_n
         assert option(fresh[0], "--episodes") == "2" and "--prelude" not in fresh[0]
 
 
-def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_with_its_own_arms_and_tables(calls):
-    """Step 41: models/trivla_cpu is last written by the soup of steps 36 and 38 (one start, two seeds) and step 39
-    (step 36 followed further), from the follows' final checkpoints; after it come its twelve seeds (with the six
-    seeds' flags; six more later), the 40 chains, its own ablation arms (trained from it), the tables with them
-    and its grasp probe."""
+def refit_call(every_call: list[list[str]]) -> int:
+    """The index in `every_call` of step 46's re-fit, which last writes models/trivla_cpu."""
+    return next(i for i, argv in enumerate(every_call)
+                if argv[:2] == ["python", "results/grounding_scenes/refit_grounding.py"])
+
+
+def test_the_soup_is_the_held_lineages_three_follows_with_its_own_arms_and_tables(calls, every_call):
+    """Step 41: models/trivla_cpu is written by the soup of steps 36 and 38 (one start, two seeds) and step 39
+    (step 36 followed further), from the follows' final checkpoints; after it, until step 46 re-fits its grounding,
+    come its twelve seeds (with the six seeds' flags; six more later), the 40 chains, its own ablation arms (trained
+    from it), the tables with them and its grasp probe."""
     writes = [i for i, argv in enumerate(calls) if option(argv, "--out") == "models/trivla_cpu"]
     soup = calls[writes[-1]]
     assert soup[0] == "soup" and calls[writes[0]][0] == "export"  # step 29's model until then
@@ -283,7 +299,8 @@ def test_the_shipped_checkpoint_is_the_soup_of_the_held_lineages_three_follows_w
     assert option(follows[0], "--init") == option(follows[1], "--init") == "runs/heldall_follow/final"
     assert option(follows[2], "--init") == "runs/heldall2_follow/final"
     assert "--drop-unused-llm-layers" in soup
-    after = calls[writes[-1] + 1:]
+    soup_at = next(i for i, argv in enumerate(every_call) if argv == soup)
+    after = [argv for argv in every_call[soup_at + 1:refit_call(every_call)] if argv[0] != "python"]
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
     runs = [argv for argv in after if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
@@ -393,3 +410,28 @@ def test_the_system2_scene_runs_train_the_shipped_models_image_tokens_on_ten_tim
         assert option(run, "--vqa-scenes") == "5000"
     assert option(same_head, "--dense-subcells") is None and option(finer, "--dense-subcells") == "7"
     assert _without(finer, "--out", "--lr", "--dense-subcells") == _without(same_head, "--out", "--lr")
+
+
+def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered_scenes(calls, every_call):
+    """Step 46: models/trivla_cpu is last written by the re-fit of step 41's soup (the copy it kept) on 12000
+    rendered scenes and DATA's grounding frames; then the grounding check, the 120 grasping scenes and eighteen
+    seeds with the six seeds' flags, compared with the soup's."""
+    at = refit_call(every_call)
+    refit = every_call[at]
+    assert refit[2:5] == ["runs/soup3", "data/sim", "models/trivla_cpu"]
+    assert [option(refit, k) for k in ("--scenes", "--steps", "--lr")] == ["12000", "1500", "3e-4"]
+    later = every_call[at + 1:]
+    assert not any(option(argv, "--out") == "models/trivla_cpu" for argv in later)  # the last write
+    runs = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
+            and option(argv, "--tasks") is None]
+    assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+    six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
+               and option(argv, "--chains") is None)
+    assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
+    grasp = next(argv for argv in later if argv[0] == "evaluate" and option(argv, "--tasks") is not None)
+    assert (option(grasp, "--episodes"), option(grasp, "--seed")) == ("40", "2000")
+    assert any(argv[0] == "probe" and option(argv, "--grounding-scenes") == "20" for argv in later)
+    compare = next(argv for argv in later if argv[:2] == ["python", "results/follow_control/compare_seeds.py"])
+    assert "shipped=results/model_soup/soup3" in compare and "refit=results/grounding_scenes/refit" in compare
+    copy_at = SCRIPT.read_text().index('cp -r models/trivla_cpu "$RUNS/soup3"')
+    assert SCRIPT.read_text().index("trivla-drake soup") < copy_at < SCRIPT.read_text().index("# 42.")

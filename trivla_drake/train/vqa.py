@@ -22,13 +22,13 @@ import hashlib
 import json
 import math
 import os
-import shutil
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from trivla_drake.train.atomic_folder import atomic_folder
 
 from trivla_drake.tasks.scene import (
     BLOCK_COLORS,
@@ -320,11 +320,7 @@ def generate_vqa_set(folder: str | os.PathLike, settings: dict[str, Any], *, pro
     import pyarrow.parquet as pq
     from tqdm import tqdm
 
-    folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = folder.with_name(f".tmp-{folder.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    tmp.mkdir()
-    try:
+    with atomic_folder(folder) as tmp:
         n, size = int(settings["scenes"]), int(settings["image_size"])
         renderer = SceneRenderer(size)
         layout = renderer.layout()
@@ -349,13 +345,7 @@ def generate_vqa_set(folder: str | os.PathLike, settings: dict[str, Any], *, pro
         pq.write_table(pa.table(rows), tmp / "qa.parquet")
         meta = {**settings, "questions": len(rows["scene"]), "eval_every": EVAL_EVERY}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.rename(tmp, folder)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return folder
+    return Path(folder)
 
 
 def read_vqa_meta(folder: str | os.PathLike) -> dict[str, Any] | None:

@@ -1,0 +1,90 @@
+"""Reproduce step 46 (run from the repository root): re-fits a checkpoint's instruction-grounding read-out on
+rendered grounding scenes mixed with a dataset's grounding frames (trivla_drake/train/grounding_refit.py), measures
+the sub-goal's x-y error on unseen rendered scenes before and after, and saves the model in float16 (as the default
+checkpoint). Writes OUT/ (the checkpoint), REPORT.json (errors per task, loss curve, timings) and REPORT.loss.png
+(REPORT: --report, default OUT).
+
+python results/grounding_scenes/refit_grounding.py CHECKPOINT DATA OUT [--scenes 12000] [--test-scenes 600]
+    [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]"""
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.nn import load_checkpoint
+from trivla_drake.nn.checkpoint import save_checkpoint
+from trivla_drake.train import grounding_refit as refit
+from trivla_drake.train import grounding_scenes as gs
+from trivla_drake.train.config import default_cache_dir
+
+TRAIN_SEED, TEST_SEED = 0, 1  # the unseen test scenes are drawn with another seed
+
+
+def errors_by_task(model, samples):
+    """Median and 90th percentile x-y error [cm], all samples and per task."""
+    error = 100 * refit.subgoal_errors(model, samples)
+    tasks = np.asarray(samples.tasks)
+    rows = {"all": error} | {t: error[tasks == t] for t in sorted(set(samples.tasks))}
+    return {k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in rows.items()}
+
+
+def rendered(model, scenes: int, seed: int):
+    settings = gs.grounding_scene_settings(scenes=scenes, seed=seed, image_size=model.image_size)
+    folder = Path(default_cache_dir()) / "grounding_scenes" / gs.grounding_scene_key(settings)
+    return refit.scene_samples(model, gs.GroundingScenes(gs.ensure_grounding_scenes(folder, settings)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint")
+    parser.add_argument("data")
+    parser.add_argument("out")
+    parser.add_argument("--scenes", type=int, default=12000)
+    parser.add_argument("--test-scenes", type=int, default=600)
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--stride", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--report", default=None, help="prefix of the report's .json and .loss.png (default: OUT)")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    model = load_checkpoint(args.checkpoint).eval()
+    if model.policy.grounding is None:
+        raise SystemExit(f"{args.checkpoint} has no instruction grounding to re-fit")
+    started = time.time()
+    scenes, test = rendered(model, args.scenes, TRAIN_SEED), rendered(model, args.test_scenes, TEST_SEED)
+    scenes_s = time.time() - started
+    frames = refit.dataset_samples(model, LeRobotReader(args.data), stride=args.stride,
+                                   static_camera="observation.images.static", wrist_camera="observation.images.wrist")
+    prepare_s = time.time() - started
+    before = {"test_scenes": errors_by_task(model, test), "data_frames": errors_by_task(model, frames)}
+    print("before", json.dumps(before["test_scenes"]["all"]), flush=True)
+    curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr)
+    after = {"test_scenes": errors_by_task(model, test), "data_frames": errors_by_task(model, frames)}
+    print("after", json.dumps(after["test_scenes"]["all"]), flush=True)
+    save_checkpoint(model, args.out, weights_dtype="float16")
+    report = {"checkpoint": args.checkpoint, "data": args.data, "settings": vars(args),
+              "samples": {"scenes": len(scenes), "test_scenes": len(test), "data_frames": len(frames)},
+              "seconds": {"scenes_and_their_q_vl": round(scenes_s), "data_q_vl": round(prepare_s - scenes_s),
+                          "refit": round(time.time() - started - prepare_s)},
+              "median_and_p90_xy_error_cm": {"before": before, "after": after}, "loss_ema": curve}
+    report_prefix = args.report or args.out
+    Path(f"{report_prefix}.json").write_text(json.dumps(report, indent=1))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    ax.plot(*zip(*curve))
+    ax.set(xlabel="step", ylabel="grounding loss (EMA)", yscale="log", title="re-fit on rendered grounding scenes")
+    fig.tight_layout()
+    fig.savefig(f"{report_prefix}.loss.png", dpi=120)
+
+
+if __name__ == "__main__":
+    main()

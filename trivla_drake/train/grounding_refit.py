@@ -1,0 +1,185 @@
+"""Re-fitting the instruction grounding's read-out on rendered scenes (results/grounding_scenes).
+
+The grounding (nn/instruction_grounding.py) reads Q_vl through the Q_vl path that System 1's DiT also
+reads (vl_norm, vl_proj, vl_position), and gives System 1 its sub-goal. `refit_readout` trains only the
+grounding's read-out (`readout_parameters`: the grounding but its goal projection) on Q_vl computed once
+from two sources, mixed in every batch: rendered grounding scenes (train/grounding_scenes.py: many
+layouts) and a dataset's grounding frames (data/samples.py: what a bind run trains on, so the frames
+along real approaches and while carrying stay fitted). Everything else System 1 reads stays as it was
+(the feature statistics too), so no follow run is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from trivla_drake.nn.panda_tcp import denormalize_position
+
+GROUNDING_CARRY_TASKS = ("stack_block", "place_in_bowl", "unstack_block", "rotate_block_left", "rotate_block_right")
+
+
+@dataclass
+class GroundingSamples:
+    """Precomputed grounding inputs and labels: Q_vl float16 (N, S, D) right-padded with its mask (N, S),
+    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), each sample's task."""
+
+    q_vl: torch.Tensor
+    q_vl_mask: torch.Tensor
+    state: torch.Tensor
+    subgoal_position: torch.Tensor
+    subgoal_yaw: torch.Tensor
+    tasks: list[str]
+
+    def __len__(self) -> int:
+        return len(self.tasks)
+
+    def batch(self, rows: torch.Tensor, length: int) -> dict[str, torch.Tensor]:
+        """`compute_grounding_loss`'s batch of `rows`, Q_vl padded to `length` tokens."""
+        pad = length - self.q_vl.shape[1]
+        return {
+            "q_vl": torch.nn.functional.pad(self.q_vl[rows].float(), (0, 0, 0, pad)),
+            "q_vl_mask": torch.nn.functional.pad(self.q_vl_mask[rows], (0, pad)),
+            "state": self.state[rows], "subgoal_position": self.subgoal_position[rows],
+            "subgoal_yaw": self.subgoal_yaw[rows],
+        }
+
+
+def _padded(sequences: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    longest = max(len(s) for s in sequences)
+    q_vl = torch.zeros(len(sequences), longest, sequences[0].shape[1], dtype=torch.float16)
+    mask = torch.zeros(len(sequences), longest, dtype=torch.bool)
+    for i, s in enumerate(sequences):
+        q_vl[i, : len(s)], mask[i, : len(s)] = s, True
+    return q_vl, mask
+
+
+@torch.inference_mode()
+def _encode(model, static: np.ndarray, wrist: np.ndarray, instructions: list[str], batch_size: int) -> list[torch.Tensor]:
+    """System 2's Q_vl (valid tokens only, float16) of uint8 views (N, S, S, 3) at the model's image size."""
+    out = []
+    for start in range(0, len(instructions), batch_size):
+        q, mask = model.encode_vision_language_batch(
+            torch.from_numpy(np.ascontiguousarray(static[start : start + batch_size])),
+            torch.from_numpy(np.ascontiguousarray(wrist[start : start + batch_size])),
+            instructions[start : start + batch_size])
+        out += [q[i, mask[i]].to(torch.float16).clone() for i in range(len(q))]
+    return out
+
+
+def scene_samples(model, scenes, *, batch_size: int = 32, progress: bool = True) -> GroundingSamples:
+    """Q_vl of every rendered grounding scene (train/grounding_scenes.GroundingScenes) with its labels."""
+    from tqdm import tqdm
+
+    if scenes.static.shape[1] != model.image_size:
+        raise ValueError(f"the grounding scenes in {scenes.folder} are {scenes.static.shape[1]} px; the model reads "
+                         f"{model.image_size} px: render them at its image size")
+    sequences = []
+    step = 512
+    for start in tqdm(range(0, len(scenes.instructions), step), desc="System 2 on grounding scenes", unit="block", disable=not progress):
+        sl = slice(start, start + step)
+        sequences += _encode(model, scenes.static[sl], scenes.wrist[sl], scenes.instructions[sl], batch_size)
+    q_vl, mask = _padded(sequences)
+    return GroundingSamples(q_vl, mask, torch.from_numpy(scenes.state.copy()),
+                            torch.from_numpy(scenes.subgoal_position.copy()), torch.from_numpy(scenes.subgoal_yaw.copy()),
+                            list(scenes.tasks))
+
+
+def dataset_samples(model, reader, *, stride: int, static_camera: str, wrist_camera: str,
+                    carry_tasks: tuple[str, ...] = GROUNDING_CARRY_TASKS, batch_size: int = 32,
+                    progress: bool = True) -> GroundingSamples:
+    """Q_vl of every `stride`-th grounding frame of a dataset (before each episode's first gripper change,
+    and the carrying frames of `carry_tasks`; TrainingSamples.grounding_frames) with its labels."""
+    from tqdm import tqdm
+
+    from trivla_drake.data.samples import TrainingSamples
+    from trivla_drake.train.datasets import STATE_KEY, check_cameras, resize_frames
+
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1; got {stride}")
+    check_cameras(reader, [static_camera, wrist_camera])
+    samples = TrainingSamples(reader, history=1, future_frames=0, cameras=[], cache_episodes=1,
+                              grounding_carry_tasks=tuple(carry_tasks))
+    starts = np.concatenate([[0], np.cumsum([int(e["length"]) for e in reader.episodes])])
+    sequences, states, positions, yaws, tasks = [], [], [], [], []
+    for episode in tqdm(range(reader.num_episodes), desc="System 2 on grounding frames", unit="episode",
+                        disable=not progress):
+        frames = np.flatnonzero(samples.grounding_frames(episode))[::stride]
+        if not len(frames):
+            continue
+        labelled = [samples[int(starts[episode] + t)] for t in frames]
+        static = resize_frames(reader.episode_video(episode, static_camera)[frames], model.image_size)
+        wrist = resize_frames(reader.episode_video(episode, wrist_camera)[frames], model.image_size)
+        sequences += _encode(model, static, wrist, [reader.task_of(episode)] * len(frames), batch_size)
+        states.append(np.stack([np.asarray(x[STATE_KEY][-1], dtype=np.float32) for x in labelled]))
+        positions.append(np.stack([x["subgoal_position"] for x in labelled]))
+        yaws.append(np.stack([x["subgoal_yaw"] for x in labelled]))
+        tasks += [str(reader.episodes[episode].get("trivla/task") or reader.task_of(episode))] * len(frames)
+    if not sequences:
+        raise ValueError(f"the dataset at {reader.root} has no grounding frames (none before a gripper change)")
+    q_vl, mask = _padded(sequences)
+    return GroundingSamples(q_vl, mask, torch.from_numpy(np.concatenate(states)),
+                            torch.from_numpy(np.concatenate(positions).astype(np.float32)),
+                            torch.from_numpy(np.concatenate(yaws).astype(np.float32)), tasks)
+
+
+def readout_parameters(model) -> dict[str, torch.nn.Parameter]:
+    """The grounding's read-out by name: its parameters but the goal projection System 1 reads."""
+    return {name: p for name, p in model.policy.binding_parameters().items() if name.startswith("grounding.")}
+
+
+@torch.no_grad()
+def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
+    """x-y distance [m] (N,) of the grounding's sub-goal from each sample's label."""
+    model.eval()
+    errors = []
+    for start in range(0, len(samples), batch_size):
+        rows = torch.arange(start, min(start + batch_size, len(samples)))
+        b = samples.batch(rows, samples.q_vl.shape[1])
+        predicted = denormalize_position(model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"])[:, :3])
+        errors.append((predicted[:, :2] - b["subgoal_position"][:, :2]).norm(dim=-1))
+    return torch.cat(errors).numpy()
+
+
+def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, steps: int, lr: float,
+                  scene_share: float = 0.5, batch_size: int = 64, seed: int = 0, log_every: int = 100,
+                  progress: bool = True) -> list[tuple[int, float]]:
+    """Adam on the grounding's read-out alone (`readout_parameters`), each batch `scene_share` rendered
+    scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps."""
+    from tqdm import tqdm
+
+    if steps < 1 or not lr > 0 or batch_size < 2:
+        raise ValueError(f"steps must be >= 1, lr > 0 and batch_size >= 2; got {steps}, {lr}, {batch_size}")
+    if not 0.0 < scene_share < 1.0:
+        raise ValueError(f"scene_share must be in (0, 1); got {scene_share}")
+    trained = readout_parameters(model)
+    for name, p in model.named_parameters():
+        p.requires_grad_(False)
+    params = [p for name, p in model.policy.named_parameters() if name in trained]
+    for p in params:
+        p.requires_grad_(True)
+    optimizer = torch.optim.Adam(params, lr=lr)
+    generator = torch.Generator().manual_seed(seed)
+    from_scenes = int(round(batch_size * scene_share))
+    length = max(scenes.q_vl.shape[1], frames.q_vl.shape[1])
+    ema, curve = None, []
+    bar = tqdm(range(steps), desc="re-fitting the grounding", unit="step", disable=not progress)
+    for step in bar:
+        model.policy.grounding.train()
+        parts = [scenes.batch(torch.randint(len(scenes), (from_scenes,), generator=generator), length),
+                 frames.batch(torch.randint(len(frames), (batch_size - from_scenes,), generator=generator), length)]
+        batch = {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
+        loss, _ = model.compute_grounding_loss(batch)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        value = float(loss.detach())
+        ema = value if ema is None else 0.98 * ema + 0.02 * value
+        if (step + 1) % log_every == 0 or step + 1 == steps:
+            curve.append((step + 1, ema))
+            bar.set_postfix(loss=f"{ema:.4f}")
+    model.requires_grad_(False)
+    model.eval()
+    return curve
