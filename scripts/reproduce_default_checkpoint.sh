@@ -853,8 +853,8 @@ fi
 #     with the arm at its start, half along the oracle's approach; labelled with where the plan closes the gripper)
 #     mixed half and half with DATA's grounding frames, 1500 steps (results/grounding_scenes/refit_grounding.py;
 #     only the read-out trains, so System 1 needs no follow). Its sub-goal on 600 other rendered scenes; the
-#     grounding check along the oracle's approach; eighteen seeds (1000-1017) and the 120 grasping scenes, compared
-#     with the soup. (Step 41 keeps a copy of the soup in RUNS/soup3; the re-fit reads it and writes models/trivla_cpu.)
+#     grounding check along the oracle's approach; the 120 grasping scenes and eighteen seeds (1000-1017), compared
+#     with the soup; its own tables (without ablation arms: the soup's in results/report.md stand for it). (Step 41 keeps a copy of the soup in RUNS/soup3; the re-fit reads it and writes models/trivla_cpu.)
 mkdir -p results/grounding_scenes
 "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py "$RUNS/soup3" "$DATA" models/trivla_cpu \
     --scenes 12000 --steps 1500 --lr 3e-4 --report results/grounding_scenes/refit
@@ -863,5 +863,8 @@ trivla-drake probe --checkpoint models/trivla_cpu --grounding-scenes 20 --thread
 trivla-drake evaluate --policy models/trivla_cpu --tasks lift_block,stack_block,place_in_bowl --episodes 40 \
     --seed 2000 --workers 2 --json > results/grounding_scenes/grasp_tasks_refit.json
 EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds models/trivla_cpu results/grounding_scenes/refit
+trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
+    --latency-tasks rotate_block_left,turn_off_light,unstack_block --evaluations results/evaluations \
+    --out results/grounding_scenes/tables
 "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_scenes/compare.png \
     shipped=results/model_soup/soup3 refit=results/grounding_scenes/refit > results/grounding_scenes/compare.md

@@ -414,8 +414,8 @@ def test_the_system2_scene_runs_train_the_shipped_models_image_tokens_on_ten_tim
 
 def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered_scenes(calls, every_call):
     """Step 46: models/trivla_cpu is last written by the re-fit of step 41's soup (the copy it kept) on 12000
-    rendered scenes and DATA's grounding frames; then the grounding check, the 120 grasping scenes and eighteen
-    seeds with the six seeds' flags, compared with the soup's."""
+    rendered scenes and DATA's grounding frames; then the grounding check, the 120 grasping scenes, eighteen
+    seeds with the six seeds' flags, compared with the soup's, and its own tables."""
     at = refit_call(every_call)
     refit = every_call[at]
     assert refit[2:5] == ["runs/soup3", "data/sim", "models/trivla_cpu"]
@@ -425,6 +425,8 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     runs = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
             and option(argv, "--tasks") is None]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+    tables = [argv for argv in later if argv[0] == "tables"]
+    assert [(option(a, "--full"), option(a, "--out")) for a in tables] == [("models/trivla_cpu", "results/grounding_scenes/tables")]
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
                and option(argv, "--chains") is None)
     assert all(_without(argv, "--seed", "--policy") == _without(six, "--seed", "--policy") for argv in runs)
