@@ -60,7 +60,9 @@ def grounding_scene_key(settings: dict[str, Any]) -> str:
 
 def quarter_turn_yaw(pose: np.ndarray) -> np.ndarray:
     """(cos 4 psi, sin 4 psi) of a downward tcp pose's yaw psi (data/subgoals.py's yaw features)."""
-    psi = math.atan2(pose[1, 0], pose[0, 0])
+    from trivla_drake.tasks.scene import hand_yaw
+
+    psi = hand_yaw(pose)
     return np.array([math.cos(4 * psi), math.sin(4 * psi)], dtype=np.float32)
 
 
