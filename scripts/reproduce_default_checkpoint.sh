@@ -866,5 +866,26 @@ EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds models/trivla_cpu results/grounding
 trivla-drake tables --full models/trivla_cpu --episodes 2 --chains 3 --workers 2 \
     --latency-tasks rotate_block_left,turn_off_light,unstack_block --evaluations results/evaluations \
     --out results/grounding_scenes/tables
+# (Session 45) Its 40 chains and every task after a one- and a two-task prelude, compared with the soup's.
+forty_chains models/trivla_cpu results/grounding_scenes/refit
+preludes models/trivla_cpu results/grounding_scenes/refit
 "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 results/grounding_scenes/compare.png \
     shipped=results/model_soup/soup3 refit=results/grounding_scenes/refit > results/grounding_scenes/compare.md
+# 47. Optional (CHAIN_STARTS=1, after step 46; results/grounding_scenes/chain_starts/): the shipped model's grounding
+#     read-out re-fitted again, 1500 steps, on 8000 rendered scenes half of which start where one or two earlier
+#     tasks of a chain left the scene and the arm (the rest as step 46's), mixed with DATA's grounding frames; its
+#     sub-goal on unseen plain and chain-start scenes, by how much of the block the static camera sees; the same
+#     chains, preludes and eighteen seeds as step 46, compared with it.
+if [[ "${CHAIN_STARTS:-0}" == 1 ]]; then
+  CS=results/grounding_scenes/chain_starts
+  mkdir -p "$CS"
+  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/chainfit" \
+      --scenes 8000 --chain-starts 0.5 --steps 1500 --lr 3e-4 --report "$CS/chainfit_refit"
+  "${PYTHON:-python}" results/grounding_scenes/chain_starts/occlusion.py "$CS/occlusion.json" \
+      shipped=models/trivla_cpu chainfit="$RUNS/chainfit" > "$CS/occlusion.md"
+  forty_chains "$RUNS/chainfit" "$CS/chainfit"
+  preludes "$RUNS/chainfit" "$CS/chainfit"
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/chainfit" "$CS/chainfit"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$CS/compare.png" \
+      shipped=results/grounding_scenes/refit chainfit="$CS/chainfit" soup=results/model_soup/soup3 > "$CS/compare.md"
+fi

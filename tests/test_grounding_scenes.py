@@ -81,6 +81,63 @@ def test_scenes_are_labelled_with_the_plans_grasp_and_placed_along_its_approach(
     assert np.linalg.norm(tcp - start_tcp) > 0.02
 
 
+def test_a_prelude_leaves_the_scene_as_the_oracle_would():
+    from trivla_drake.tasks.scene import sample_scene
+    from trivla_drake.tasks.suite import TaskInstance, get_task
+
+    layout = Layout.default()
+
+    def applied(name, spec, params=()):
+        instance = TaskInstance(name, params, "")
+        plan = get_task(name).plan(params, scene_from_spec(spec, layout))
+        return gs.after_prelude(spec, instance, plan, layout)
+
+    closed = sample_scene(np.random.default_rng(1), layout, drawer_open=False, lamp_on=False)
+    assert applied("open_drawer", closed).drawer_opening == pytest.approx(0.13)
+    assert applied("close_drawer", applied("open_drawer", closed)).drawer_opening == 0.0
+    assert applied("turn_on_light", closed).lamp_on and not applied("turn_off_light", closed).lamp_on
+    for name in ("place_in_bowl", "push_block_left", "rotate_block_right", "stack_block", "unstack_block"):
+        rng = np.random.default_rng(7)
+        task = get_task(name)
+        drawn = (sample_scene(rng, layout, stack=name == "unstack_block") for _ in range(50))
+        spec = next(s for s in drawn if task.candidates(scene_from_spec(s, layout)))
+        params = task.candidates(scene_from_spec(spec, layout))[0]
+        before, after = scene_from_spec(spec, layout), scene_from_spec(applied(name, spec, params), layout)
+        assert task.success(params, before, after), name  # the task's own test says it was done
+        others = [c for c in spec.blocks if c != params[0]]
+        assert all(np.allclose(after.block_position(c), before.block_position(c)) for c in others), name
+    with pytest.raises(ValueError, match="no prelude effect is known for task 'lift_block'"):
+        applied("lift_block", closed, ("red",))
+
+
+def test_chain_start_scenes_start_where_a_prelude_left_the_arm_and_keep_their_task_possible():
+    from trivla_drake.action import GRIPPER_CLOSE
+    from trivla_drake.tasks.suite import get_task
+
+    layout, kinematics = Layout.default(), PandaKinematics()
+    assert "chain_starts" not in gs.grounding_scene_settings(scenes=2, seed=0, image_size=32)
+    assert gs.grounding_scene_settings(scenes=2, seed=0, image_size=32, chain_starts=0.5)["chain_starts"] == 0.5
+    with pytest.raises(ValueError, match="chain_starts must be a fraction"):
+        gs.grounding_scene_settings(scenes=2, seed=0, image_size=32, chain_starts=1.5)
+    # Without chain starts a scene is drawn as before they existed.
+    plain = gs.sample_grounding_scene(3, 5, layout, kinematics)
+    np.testing.assert_array_equal(gs.sample_grounding_scene(3, 5, layout, kinematics, 0.0)["state"], plain["state"])
+    assert not plain["chain_start"]
+    home_tcp = kinematics.ee_pose(np.asarray(HOME_ARM_Q))[:3, 3]
+    for index in range(6):
+        scene = gs.sample_grounding_scene(index, 5, layout, kinematics, 1.0)
+        assert scene["chain_start"] and scene["along_approach"] == (index % 2 == 1)
+        task, state = get_task(scene["task"]), scene_from_spec(scene["spec"], layout)
+        possible = task.candidates(state)
+        assert possible, scene["instruction"]
+        # The label is the plan's grasp in the scene as the preludes left it.
+        closes = {tuple(np.round(next(wp for wp in task.plan(p, state) if wp.gripper == GRIPPER_CLOSE).pose[:3, 3]
+                                 + gs.CLOSE_TRACKING_LAG, 5)) for p in possible}
+        assert tuple(np.round(scene["subgoal_position"].astype(float), 5)) in closes
+        tcp = kinematics.ee_pose(np.asarray(scene["spec"].arm_q))[:3, 3]
+        assert np.linalg.norm(tcp - home_tcp) > 0.05  # not the start posture: a prelude's end or the way on
+
+
 def test_a_set_is_rendered_once_read_back_and_never_overwritten_by_other_settings(tmp_path):
     settings = gs.grounding_scene_settings(scenes=2, seed=3, image_size=32)
     folder = gs.ensure_grounding_scenes(tmp_path / "scenes", settings, progress=False)
@@ -194,15 +251,37 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     data = write_synthetic_dataset(tmp_path / "d", episodes=2, length=10, image_size=16, tcp_pose=True)
     script = results_script("grounding_scenes/refit_grounding.py")
     monkeypatch.setattr("sys.argv", ["refit_grounding.py", str(tmp_path / "in"), data, str(tmp_path / "out"),
-                                     "--scenes", "4", "--test-scenes", "2", "--steps", "3", "--lr", "0.01", "--threads", "1",
+                                     "--scenes", "4", "--test-scenes", "2", "--chain-starts", "0.5", "--steps", "3", "--lr", "0.01", "--threads", "1",
                                      "--report", str(tmp_path / "report")])
     script.main()
     report = json.loads((tmp_path / "report.json").read_text())
-    assert report["samples"] == {"scenes": 4, "test_scenes": 2, "data_frames": 4}
+    assert report["samples"] == {"scenes": 4, "test_scenes": 2, "test_chain_starts": 2, "data_frames": 4}
     assert set(report["median_and_p90_xy_error_cm"]["after"]["test_scenes"]) == {"all", "lift_block"}
+    assert set(report["median_and_p90_xy_error_cm"]["after"]["test_chain_starts"]) == {"all", "lift_block"}
     assert (tmp_path / "report.loss.png").stat().st_size > 0
-    assert len(list((tmp_path / "cache" / "trivla_drake" / "train" / "grounding_scenes").iterdir())) == 2
+    sets = list((tmp_path / "cache" / "trivla_drake" / "train" / "grounding_scenes").iterdir())
+    assert len(sets) == 3  # training (half chain starts), plain test, chain-start test
+    assert sorted(json.loads((f / "meta.json").read_text()).get("chain_starts", 0.0) for f in sets) == [0.0, 0.5, 1.0]
     before, after = load_checkpoint(str(tmp_path / "in")).state_dict(), load_checkpoint(str(tmp_path / "out")).state_dict()
     readout = {f"policy.{name}" for name in refit.readout_parameters(model)}
     changed = {k for k in before if not torch.allclose(before[k].float(), after[k].float(), atol=1e-3)}
     assert changed and changed <= readout
+
+
+def test_the_occlusion_script_bins_each_models_errors_by_how_much_of_the_block_the_static_camera_sees(
+        tmp_path, monkeypatch, results_script, capsys):
+    from trivla_drake.nn.checkpoint import save_checkpoint
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    save_checkpoint(_grounded_model(), str(tmp_path / "model"))
+    script = results_script("grounding_scenes/chain_starts/occlusion.py")
+    assert script.first_color("place the blue block onto the red block") == "blue"
+    monkeypatch.setattr("sys.argv", ["occlusion.py", str(tmp_path / "out.json"), f"tiny={tmp_path / 'model'}",
+                                     "--scenes", "3", "--threads", "1"])
+    script.main()
+    report = json.loads((tmp_path / "out.json").read_text())
+    assert len(report["static_pixels"]) == len(report["error_cm"]["tiny"]) == 3
+    assert sum(report["static_pixels"]) + sum(report["wrist_pixels"]) > 0  # the blocks are seen somewhere
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("| static-view pixels") and len(table) == 2 + len(script.BINS)
+    assert sum(int(row.split("|")[2]) for row in table[2:]) == 3

@@ -46,7 +46,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -422,9 +422,14 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     assert [option(refit, k) for k in ("--scenes", "--steps", "--lr")] == ["12000", "1500", "3e-4"]
     later = every_call[at + 1:]
     assert not any(option(argv, "--out") == "models/trivla_cpu" for argv in later)  # the last write
-    runs = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
-            and option(argv, "--tasks") is None]
+    evaluations = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
+                   and option(argv, "--tasks") is None]
+    runs = [argv for argv in evaluations if option(argv, "--chains") is None and option(argv, "--prelude") is None]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
+    # Session 45: its 40 chains and the preludes, as the soup's.
+    assert sorted(option(argv, "--seed") for argv in evaluations if option(argv, "--chains") == "20") == ["1003", "1004"]
+    assert sorted((option(argv, "--prelude"), option(argv, "--seed")) for argv in evaluations
+                  if option(argv, "--prelude") is not None) == [("1", "1000"), ("1", "1001"), ("1", "1002"), ("2", "1000")]
     tables = [argv for argv in later if argv[0] == "tables"]
     assert [(option(a, "--full"), option(a, "--out")) for a in tables] == [("models/trivla_cpu", "results/grounding_scenes/tables")]
     six = next(argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/heldall2_export"
@@ -436,4 +441,11 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     compare = next(argv for argv in later if argv[:2] == ["python", "results/follow_control/compare_seeds.py"])
     assert "shipped=results/model_soup/soup3" in compare and "refit=results/grounding_scenes/refit" in compare
     copy_at = SCRIPT.read_text().index('cp -r models/trivla_cpu "$RUNS/soup3"')
+    # Step 47 (optional): the re-fit again with chain-start scenes, never written over the shipped model.
+    chainfit = [argv for argv in later if argv[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    assert [argv[2:5] for argv in chainfit] == [["models/trivla_cpu", "data/sim", "runs/chainfit"]]
+    assert [option(chainfit[0], k) for k in ("--scenes", "--chain-starts")] == ["8000", "0.5"]
+    assert sorted(int(option(argv, "--seed")) for argv in later if argv[0] == "evaluate"
+                  and option(argv, "--policy") == "runs/chainfit" and option(argv, "--chains") is None
+                  and option(argv, "--prelude") is None) == list(range(1000, 1018))
     assert SCRIPT.read_text().index("trivla-drake soup") < copy_at < SCRIPT.read_text().index("# 42.")

@@ -5,7 +5,11 @@ checkpoint). Writes OUT/ (the checkpoint), REPORT.json (errors per task, loss cu
 (REPORT: --report, default OUT).
 
 python results/grounding_scenes/refit_grounding.py CHECKPOINT DATA OUT [--scenes 12000] [--test-scenes 600]
-    [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]"""
+    [--chain-starts 0] [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]
+
+With --chain-starts F, that fraction of the training scenes start where one or two earlier tasks of a chain left
+the scene and the arm (train/grounding_scenes.py), and the errors are also reported on 600 unseen scenes that all
+start so (`test_chain_starts`)."""
 import argparse
 import json
 import time
@@ -32,8 +36,9 @@ def errors_by_task(model, samples):
     return {k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in rows.items()}
 
 
-def rendered(model, scenes: int, seed: int):
-    settings = gs.grounding_scene_settings(scenes=scenes, seed=seed, image_size=model.image_size)
+def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0):
+    settings = gs.grounding_scene_settings(scenes=scenes, seed=seed, image_size=model.image_size,
+                                           chain_starts=chain_starts)
     folder = Path(default_cache_dir()) / "grounding_scenes" / gs.grounding_scene_key(settings)
     return refit.scene_samples(model, gs.GroundingScenes(gs.ensure_grounding_scenes(folder, settings)))
 
@@ -45,6 +50,8 @@ def main() -> None:
     parser.add_argument("out")
     parser.add_argument("--scenes", type=int, default=12000)
     parser.add_argument("--test-scenes", type=int, default=600)
+    parser.add_argument("--chain-starts", type=float, default=0.0,
+                        help="fraction of the training scenes that start where a chain's earlier tasks left them")
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--stride", type=int, default=3)
@@ -56,19 +63,26 @@ def main() -> None:
     if model.policy.grounding is None:
         raise SystemExit(f"{args.checkpoint} has no instruction grounding to re-fit")
     started = time.time()
-    scenes, test = rendered(model, args.scenes, TRAIN_SEED), rendered(model, args.test_scenes, TEST_SEED)
+    scenes = rendered(model, args.scenes, TRAIN_SEED, args.chain_starts)
+    tests = {"test_scenes": rendered(model, args.test_scenes, TEST_SEED)}
+    if args.chain_starts > 0:
+        tests["test_chain_starts"] = rendered(model, args.test_scenes, TEST_SEED, 1.0)
     scenes_s = time.time() - started
     frames = refit.dataset_samples(model, LeRobotReader(args.data), stride=args.stride,
                                    static_camera="observation.images.static", wrist_camera="observation.images.wrist")
     prepare_s = time.time() - started
-    before = {"test_scenes": errors_by_task(model, test), "data_frames": errors_by_task(model, frames)}
-    print("before", json.dumps(before["test_scenes"]["all"]), flush=True)
+    def errors():
+        return {name: errors_by_task(model, samples) for name, samples in tests.items()} | {
+            "data_frames": errors_by_task(model, frames)}
+
+    before = errors()
+    print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
     curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr)
-    after = {"test_scenes": errors_by_task(model, test), "data_frames": errors_by_task(model, frames)}
-    print("after", json.dumps(after["test_scenes"]["all"]), flush=True)
+    after = errors()
+    print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)
     save_checkpoint(model, args.out, weights_dtype="float16")
     report = {"checkpoint": args.checkpoint, "data": args.data, "settings": vars(args),
-              "samples": {"scenes": len(scenes), "test_scenes": len(test), "data_frames": len(frames)},
+              "samples": {"scenes": len(scenes), "data_frames": len(frames)} | {k: len(v) for k, v in tests.items()},
               "seconds": {"scenes_and_their_q_vl": round(scenes_s), "data_q_vl": round(prepare_s - scenes_s),
                           "refit": round(time.time() - started - prepare_s)},
               "median_and_p90_xy_error_cm": {"before": before, "after": after}, "loss_ema": curve}
