@@ -874,8 +874,9 @@ preludes models/trivla_cpu results/grounding_scenes/refit
 # 47. Optional (CHAIN_STARTS=1, after step 46; results/grounding_scenes/chain_starts/): the shipped model's grounding
 #     read-out re-fitted again, 1500 steps, on 8000 rendered scenes half of which start where one or two earlier
 #     tasks of a chain left the scene and the arm (the rest as step 46's), mixed with DATA's grounding frames; its
-#     sub-goal on unseen plain and chain-start scenes, by how much of the block the static camera sees; the same
-#     chains, preludes and eighteen seeds as step 46, compared with it.
+#     sub-goal on unseen plain and chain-start scenes, by how much of the block the static camera sees; the shipped
+#     model's grasps after a one-task prelude with the oracle's grasp position as its sub-goal; the same chains,
+#     preludes and eighteen seeds as step 46, compared with it.
 if [[ "${CHAIN_STARTS:-0}" == 1 ]]; then
   CS=results/grounding_scenes/chain_starts
   mkdir -p "$CS"
@@ -883,6 +884,7 @@ if [[ "${CHAIN_STARTS:-0}" == 1 ]]; then
       --scenes 8000 --chain-starts 0.5 --steps 1500 --lr 3e-4 --report "$CS/chainfit_refit"
   "${PYTHON:-python}" results/grounding_scenes/chain_starts/occlusion.py "$CS/occlusion.json" \
       shipped=models/trivla_cpu chainfit="$RUNS/chainfit" > "$CS/occlusion.md"
+  "${PYTHON:-python}" results/grounding_scenes/chain_starts/true_subgoal_prelude.py 1000,1001,1002 "$CS/true_prelude1"
   forty_chains "$RUNS/chainfit" "$CS/chainfit"
   preludes "$RUNS/chainfit" "$CS/chainfit"
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/chainfit" "$CS/chainfit"

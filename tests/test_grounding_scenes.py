@@ -285,3 +285,29 @@ def test_the_occlusion_script_bins_each_models_errors_by_how_much_of_the_block_t
     table = capsys.readouterr().out.splitlines()
     assert table[0].startswith("| static-view pixels") and len(table) == 2 + len(script.BINS)
     assert sum(int(row.split("|")[2]) for row in table[2:]) == 3
+
+
+def test_the_true_subgoal_after_a_prelude_diagnostic_runs_the_grasp_tasks_after_one_prelude_task(
+        tmp_path, monkeypatch, results_script, capsys):
+    from trivla_drake.eval import evaluate as ev
+    from trivla_drake.nn.checkpoint import save_checkpoint
+
+    save_checkpoint(_grounded_model(), str(tmp_path / "model"))
+    script = results_script("grounding_scenes/chain_starts/true_subgoal_prelude.py")
+    configs = []
+
+    def fake_evaluate(config, progress=True):  # the episodes themselves are the evaluation's (tests/test_evaluate*)
+        configs.append(config)
+        assert ev._policy(*config.policy_key()).privileged  # the oracle's grasp position needs the scene
+        return {"tasks": {t: {"successes": 1} for t in config.tasks}}
+
+    monkeypatch.setattr(ev, "evaluate", fake_evaluate)
+    monkeypatch.setattr("sys.argv", ["true_subgoal_prelude.py", "1000,1002", str(tmp_path / "true"), str(tmp_path / "model")])
+    try:
+        script.main()
+    finally:
+        ev._POLICY_CACHE.pop(("trivla", None, None, None), None)
+    assert [(c.seed, c.prelude, c.episodes, c.workers) for c in configs] == [(1000, 1, 2, 1), (1002, 1, 2, 1)]
+    assert configs[0].tasks == script.TASKS
+    assert json.loads((tmp_path / "true_seed1002.json").read_text())["tasks"]["lift_block"]["successes"] == 1
+    assert "1002" in capsys.readouterr().out
