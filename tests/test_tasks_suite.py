@@ -121,6 +121,16 @@ def test_block_predicates_follow_the_geometry():
     assert held.is_held("red") and not get_task("place_in_bowl").success(("red",), start, held)
 
 
+def test_placing_in_a_full_bowl_has_no_plan_and_says_why():
+    # The bowl sits at (0.45, 0.3): green and blue fill both of its places.
+    full = _scene(_placed({"red": ((0.4, -0.1, 0.0225), 0.0), "green": ((0.417, 0.3, 0.031), 0.0),
+                           "blue": ((0.483, 0.3, 0.031), 0.0)}))
+    task = get_task("place_in_bowl")
+    assert ("red",) not in task.candidates(full)
+    with pytest.raises(ValueError, match="no free place for the red block"):
+        task.plan(("red",), full)
+
+
 def test_fixture_predicates():
     blocks = _placed({c: ((0.4 + 0.1 * i, 0.0, 0.0225), 0.0) for i, c in enumerate(BLOCK_COLORS)})
     closed, opened = _scene(blocks), _scene(blocks, drawer_opening=0.13)

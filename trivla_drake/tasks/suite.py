@@ -194,6 +194,8 @@ class PlaceInBowl(Task):
         color = params[0]
         plan = [] if scene.is_held(color) else motions.grasp(scene, color, lift_to=TRANSIT_Z)
         spot = _bowl_spot(scene, color)
+        if spot is None:  # the candidates never offer this; a plan asked for mid-episode (a diagnostic) may be
+            raise ValueError(f"place_in_bowl: the bowl has no free place for the {color} block (other blocks fill it)")
         bowl_yaw = math.atan2(scene.layout.bowl[1, 0], scene.layout.bowl[0, 0])
         return plan + motions.place(spot, bowl_yaw, release_z=BOWL_FLOOR + BLOCK_HALF + 0.012)
 
