@@ -153,7 +153,7 @@ def test_a_set_is_rendered_once_read_back_and_never_overwritten_by_other_setting
     assert (folder / "static.npy").read_bytes() == before
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "notes.txt").write_text("mine")
-    with pytest.raises(ValueError, match="not empty and holds no grounding scenes"):
+    with pytest.raises(ValueError, match="not empty and does not hold grounding scenes"):
         gs.ensure_grounding_scenes(tmp_path / "other", settings, progress=False)
     meta = json.loads((folder / "meta.json").read_text())
     (folder / "meta.json").write_text(json.dumps({**meta, "format": 0}))

@@ -1,13 +1,16 @@
-"""A folder written atomically: filled under a temporary name, renamed into place only when complete."""
+"""A folder written atomically: filled under a temporary name, renamed into place only when complete; and a cached
+folder keyed by its settings (its meta.json), made once that way and never overwritten by other settings."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 
 @contextmanager
@@ -26,3 +29,25 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def ensure_cached_folder(folder: str | os.PathLike, settings: dict[str, Any], make: Callable[[], Path], *,
+                         what: str) -> Path:
+    """`folder` as it is when its meta.json holds `settings`; `make()` (which writes it, with that meta.json) when the
+    folder is absent or empty. ValueError, naming `what` the folder should hold, when it holds something else, an
+    unreadable meta.json, or a set made with other settings (it is never overwritten)."""
+    folder = Path(folder)
+    meta_path = folder / "meta.json"
+    if not meta_path.is_file():
+        if folder.exists() and any(folder.iterdir()):
+            raise ValueError(f"{folder} is not empty and does not hold {what} (no meta.json): choose another folder")
+        return make()
+    try:
+        meta = json.loads(meta_path.read_text())
+    except ValueError as exc:
+        raise ValueError(f"{meta_path} is not valid JSON ({exc}): delete {folder} to make the {what} again") from exc
+    differing = {k: (meta.get(k), v) for k, v in settings.items() if meta.get(k) != v}
+    if differing:
+        detail = ", ".join(f"{k}: {old!r} there, {new!r} asked" for k, (old, new) in differing.items())
+        raise ValueError(f"{folder} holds {what} made with other settings ({detail}); use another folder")
+    return folder

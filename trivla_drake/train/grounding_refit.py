@@ -62,8 +62,8 @@ def _encode(model, static: np.ndarray, wrist: np.ndarray, instructions: list[str
     out = []
     for start in range(0, len(instructions), batch_size):
         q, mask = model.encode_vision_language_batch(
-            torch.from_numpy(np.ascontiguousarray(static[start : start + batch_size])),
-            torch.from_numpy(np.ascontiguousarray(wrist[start : start + batch_size])),
+            torch.from_numpy(np.array(static[start : start + batch_size])),  # a writable copy of a memory-mapped block
+            torch.from_numpy(np.array(wrist[start : start + batch_size])),
             instructions[start : start + batch_size])
         out += [q[i, mask[i]].to(torch.float16).clone() for i in range(len(q))]
     return out

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from trivla_drake.train.atomic_folder import atomic_folder
+from trivla_drake.train.atomic_folder import atomic_folder, ensure_cached_folder
 
 GROUNDING_SCENES_FORMAT = 1
 GROUNDING_SCENE_TASKS = ("lift_block", "place_in_bowl", "stack_block", "rotate_block_left",
@@ -247,21 +247,8 @@ def generate_grounding_scenes(folder: str | os.PathLike, settings: dict[str, Any
 def ensure_grounding_scenes(folder: str | os.PathLike, settings: dict[str, Any], *, progress: bool = True) -> Path:
     """The set in `folder`, rendered if absent. ValueError if `folder` holds something else or a set
     made with other settings (it is never overwritten)."""
-    folder = Path(folder)
-    meta_path = folder / "meta.json"
-    if not meta_path.is_file():
-        if folder.exists() and any(folder.iterdir()):
-            raise ValueError(f"{folder} is not empty and holds no grounding scenes (no meta.json): choose another folder")
-        return generate_grounding_scenes(folder, settings, progress=progress)
-    try:
-        meta = json.loads(meta_path.read_text())
-    except ValueError as exc:
-        raise ValueError(f"{meta_path} is not valid JSON ({exc}): delete {folder} to render the scenes again") from exc
-    differing = {k: (meta.get(k), v) for k, v in settings.items() if meta.get(k) != v}
-    if differing:
-        detail = ", ".join(f"{k}: {old!r} there, {new!r} asked" for k, (old, new) in differing.items())
-        raise ValueError(f"{folder} holds grounding scenes made with other settings ({detail}); use another folder")
-    return folder
+    return ensure_cached_folder(folder, settings, lambda: generate_grounding_scenes(folder, settings, progress=progress),
+                                what="grounding scenes")
 
 
 class GroundingScenes:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from trivla_drake.train.atomic_folder import atomic_folder
+from trivla_drake.train.atomic_folder import atomic_folder, ensure_cached_folder
 
 from trivla_drake.tasks.scene import (
     BLOCK_COLORS,
@@ -362,17 +362,8 @@ def read_vqa_meta(folder: str | os.PathLike) -> dict[str, Any] | None:
 def ensure_vqa_set(folder: str | os.PathLike, settings: dict[str, Any], *, progress: bool = True) -> Path:
     """The VQA set in `folder`, generated if absent. ValueError if `folder` holds a set made with
     other settings (it is never overwritten)."""
-    folder = Path(folder)
-    meta = read_vqa_meta(folder)
-    if meta is None:
-        if folder.exists() and any(folder.iterdir()):
-            raise ValueError(f"{folder} is not empty and holds no VQA set (no meta.json): choose another folder")
-        return generate_vqa_set(folder, settings, progress=progress)
-    differing = {k: (meta.get(k), v) for k, v in settings.items() if meta.get(k) != v}
-    if differing:
-        detail = ", ".join(f"{k}: {old!r} there, {new!r} asked" for k, (old, new) in differing.items())
-        raise ValueError(f"{folder} holds a VQA set made with other settings ({detail}); use another folder")
-    return folder
+    return ensure_cached_folder(folder, settings, lambda: generate_vqa_set(folder, settings, progress=progress),
+                                what="a VQA set")
 
 
 class VQADataset:
