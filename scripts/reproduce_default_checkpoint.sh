@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 24.5 hours without the optional blocks (steps 34, 36, 38, 39 and 41 make the shipped soup: about 5 of them);
+# Rebuilds models/trivla_cpu and the tables in results/ as they were made (2 CPU cores, about 25 hours without the optional blocks (steps 34, 36, 38, 39 and 41 make the shipped soup: about 5 of them);
 # every step resumes or reuses its caches if rerun). The runs were made under other names (recorded in
 # the stored JSONs); each run's OUT/loss.png and summary.json were copied to results/training/. Run from the repository root in the
 # project's virtualenv. DATA, DART_DATA and RUNS may be moved elsewhere.
@@ -891,3 +891,26 @@ if [[ "${CHAIN_STARTS:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$CS/compare.png" \
       shipped=results/grounding_scenes/refit chainfit="$CS/chainfit" soup=results/model_soup/soup3 > "$CS/compare.md"
 fi
+# 48. (Session 46, about 25 min; the shipped model unchanged) Its tables with the arms: the soup's tables (step 31,
+#     with the System 1 and 1+3 arms and the 10% arm) move to results/model_soup/tables/, and results/report.* become
+#     step 46's tables of the shipped model joined with those arms (results/join_shipped_report.py: the arms have no
+#     System 2, so the re-fit leaves them unchanged; the 10% arm is shown beside the soup's 100% row, its recipe).
+#     Where its chains break and why stack fails: 40 more
+#     chains (seeds 1005, 1006) whose reports give each chain's tasks and the success at each chain position
+#     (`chains.by_position`); its twelve stack episodes of seeds 1000-1005 with where the block ends
+#     (results/stack_destinations/refit.md); place in bowl and stack with the oracle's release position as the
+#     sub-goal while the block is held (results/subgoal_diagnostics/release/).
+for seed in 1005 1006; do
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+      --json > "results/grounding_scenes/refit_chains20_seed$seed.json"
+done
+"${PYTHON:-python}" results/grounding_scenes/chain_positions.py results/grounding_scenes/refit_chains20_seed100{3,4,5,6}.json \
+    > results/grounding_scenes/chain_positions.md
+"${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/stack_destinations/refit.json \
+    > results/stack_destinations/refit.md
+"${PYTHON:-python}" results/subgoal_diagnostics/true_release.py 1000,1001,1002,1003,1004,1005 results/subgoal_diagnostics/release
+if [[ -f results/report.json && ! -f results/model_soup/tables/report.json ]]; then
+  mkdir -p results/model_soup/tables
+  mv results/report.json results/report.md results/per_task_success.png results/ablation.png results/model_soup/tables/
+fi
+"${PYTHON:-python}" results/join_shipped_report.py

@@ -166,9 +166,46 @@ def test_chains_only_report_has_no_task_rows():
     from trivla_drake.eval.evaluate import summarize
 
     config = EvalConfig(policy="oracle", tasks=list(TASK_NAMES), episodes=0, chains=2)
-    chains = [{"seed": 1, "completed": 2, "reason": "push_block_left: timeout"}, {"seed": 2, "completed": 5, "reason": ""}]
+    first = ["open_drawer", "lift_block", "push_block_left"]
+    second = ["close_drawer", "turn_on_light", "stack_block", "rotate_block_left", "unstack_block"]
+    chains = [
+        {"seed": 1, "completed": 2, "reason": "push_block_left: timeout", "subtasks": [{"task": t} for t in first]},
+        {"seed": 2, "completed": 5, "reason": "", "subtasks": [{"task": t} for t in second]},
+    ]
     report = summarize(config, [], chains)
     assert report["tasks"] == {} and report["average_success"] is None
     assert report["chain_avg_len"] == 3.5 and report["chains"]["completed_at_least"] == [1.0, 1.0, 0.5, 0.5, 0.5]
+    assert report["chains"]["tasks"] == [first, second]
+    positions = report["chains"]["by_position"]
+    assert [(r["tried"], r["succeeded"]) for r in positions] == [(2, 2), (2, 2), (2, 1), (1, 1), (1, 1)]
+    assert positions[2]["failed_tasks"] == ["push_block_left"]
     table = format_markdown(report)
     assert "average" not in table and "| 2 | 1.00 | 1.00 | 0.50 | 0.50 | 0.50 | 3.50 ± 1.06 |" in table
+    assert "| succeeded / tried | 2 / 2 | 2 / 2 | 1 / 2 | 1 / 1 | 1 / 1 |" in table
+
+
+def test_chain_positions_pools_the_reports_and_refuses_one_without_positions(tmp_path, results_script):
+    """results/grounding_scenes/chain_positions.py sums `chains.by_position` over reports."""
+    from trivla_drake.eval.evaluate import summarize
+
+    script = results_script("grounding_scenes/chain_positions.py")
+    config = EvalConfig(policy="oracle", tasks=list(TASK_NAMES), episodes=0, chains=2)
+    one = summarize(config, [], [
+        {"seed": 1, "completed": 0, "reason": "stack_block: timeout", "subtasks": [{"task": "stack_block"}]},
+        {"seed": 2, "completed": 1, "reason": "lift_block: timeout",
+         "subtasks": [{"task": "open_drawer"}, {"task": "lift_block"}]}])
+    two = summarize(config, [], [
+        {"seed": 3, "completed": 1, "reason": "stack_block: timeout",
+         "subtasks": [{"task": "turn_on_light"}, {"task": "stack_block"}]}])
+    paths = []
+    for name, report in (("one", one), ("two", two)):
+        paths.append(tmp_path / f"{name}.json")
+        paths[-1].write_text(json.dumps(report))
+    table = script.main([str(p) for p in paths])
+    assert table.splitlines()[0] == "3 chains, Avg. Len 0.67"
+    assert "| 1 | 3 | 2 | 0.67 | stack_block 1 |" in table
+    assert "| 2 | 2 | 0 | 0.00 | lift_block 1, stack_block 1 |" in table and "| 3 | 0 | 0 | - | - |" in table
+    del two["chains"]["by_position"]
+    paths[1].write_text(json.dumps(two))
+    with pytest.raises(ValueError, match="two.json: no chains.by_position"):
+        script.main([str(p) for p in paths])

@@ -24,9 +24,10 @@ def _stored(path: str) -> dict:
 
 
 def test_the_stored_report_is_the_join_of_its_two_runs(script):
-    """results/report.json is what the script makes, and it keeps the ablation and adds the 10% arm."""
+    """The soup's tables (results/model_soup/tables/report.json, results/report.json until session 46) are what the
+    script makes, and they keep the ablation and add the 10% arm."""
     join = script.join
-    full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
+    full, arm = _stored("model_soup/tables/report.json"), _stored("data_efficiency/report.json")
     joined = join(full, arm)
     assert joined == full  # the committed report is already joined: joining again changes nothing
     assert [row["systems"] for row in joined["ablation"]] == ["1", "1+3", "1+2+3"]
@@ -37,7 +38,7 @@ def test_the_stored_report_is_the_join_of_its_two_runs(script):
 
 def test_reports_that_disagree_on_the_full_model_are_not_joined(script):
     join = script.join
-    full, arm = _stored("report.json"), _stored("data_efficiency/report.json")
+    full, arm = _stored("model_soup/tables/report.json"), _stored("data_efficiency/report.json")
     changed = copy.deepcopy(arm)
     changed["main"]["average_success"] += 0.01
     with pytest.raises(ValueError, match="'main'"):
@@ -51,11 +52,11 @@ def test_reports_that_disagree_on_the_full_model_are_not_joined(script):
 def test_the_script_rewrites_the_markdown_and_plots_from_the_two_reports(tmp_path):
     """The command reproduce step 30 runs, on copies: it writes the committed report.md again."""
     (tmp_path / "data_efficiency").mkdir()
-    shutil.copy(RESULTS / "report.json", tmp_path / "report.json")
+    shutil.copy(RESULTS / "model_soup" / "tables" / "report.json", tmp_path / "report.json")
     shutil.copy(RESULTS / "data_efficiency" / "report.json", tmp_path / "data_efficiency" / "report.json")
     subprocess.run([sys.executable, str(RESULTS / "join_data_efficiency.py"), str(tmp_path)], check=True,
                    capture_output=True)
     markdown = (tmp_path / "report.md").read_text()
     assert "## Sub-system ablation" in markdown and "## Data efficiency" in markdown
-    assert markdown == (RESULTS / "report.md").read_text()
+    assert markdown == (RESULTS / "model_soup" / "tables" / "report.md").read_text()
     assert (tmp_path / "per_task_success.png").is_file() and (tmp_path / "ablation.png").is_file()

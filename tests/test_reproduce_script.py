@@ -426,8 +426,9 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
                    and option(argv, "--tasks") is None]
     runs = [argv for argv in evaluations if option(argv, "--chains") is None and option(argv, "--prelude") is None]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
-    # Session 45: its 40 chains and the preludes, as the soup's.
-    assert sorted(option(argv, "--seed") for argv in evaluations if option(argv, "--chains") == "20") == ["1003", "1004"]
+    # Session 45: its 40 chains and the preludes, as the soup's; session 46 (step 48): 40 more chains.
+    assert sorted(option(argv, "--seed") for argv in evaluations
+                  if option(argv, "--chains") == "20") == ["1003", "1004", "1005", "1006"]
     assert sorted((option(argv, "--prelude"), option(argv, "--seed")) for argv in evaluations
                   if option(argv, "--prelude") is not None) == [("1", "1000"), ("1", "1001"), ("1", "1002"), ("2", "1000")]
     tables = [argv for argv in later if argv[0] == "tables"]
@@ -449,3 +450,19 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
                   and option(argv, "--policy") == "runs/chainfit" and option(argv, "--chains") is None
                   and option(argv, "--prelude") is None) == list(range(1000, 1018))
     assert SCRIPT.read_text().index("trivla-drake soup") < copy_at < SCRIPT.read_text().index("# 42.")
+
+
+def test_step_48_joins_the_shipped_tables_with_the_soups_arms_after_both_are_made(every_call):
+    """Step 48: the shipped model's report is joined after its own tables (step 46) and the soup's tables with the
+    arms (step 31); and the stack and carrying-sub-goal diagnostics run on the shipped checkpoint."""
+    scripts = [argv[1] for argv in every_call if argv[0] == "python"]
+    join = scripts.index("results/join_shipped_report.py")
+    assert join == len(scripts) - 1 and join > scripts.index("results/join_data_efficiency.py")
+    calls_before = every_call[: next(i for i, argv in enumerate(every_call)
+                                     if argv[:2] == ["python", "results/join_shipped_report.py"])]
+    assert any(argv[0] == "tables" and option(argv, "--out") == "results/grounding_scenes/tables" for argv in calls_before)
+    stack = next(argv for argv in every_call if argv[:2] == ["python", "results/stack_destinations/stack_destinations.py"]
+                 and argv[3] == "results/stack_destinations/refit.json")
+    release = next(argv for argv in every_call if argv[:2] == ["python", "results/subgoal_diagnostics/true_release.py"])
+    assert stack[2] == "models/trivla_cpu" and release[2:] == ["1000,1001,1002,1003,1004,1005",
+                                                               "results/subgoal_diagnostics/release"]

@@ -40,3 +40,13 @@ def test_a_policy_without_grounding_has_no_subgoal_share_and_bad_arguments_print
     assert "| ... whose sub-goal is nearer the destination | - |" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="LABEL=OUT.json"):
         script.main([str(path)])
+
+
+def test_stack_destinations_records_where_the_oracle_leaves_the_block(results_script):
+    """One oracle stack episode: the named block held on its way, released on the destination and left on it."""
+    script = results_script("stack_destinations/stack_destinations.py")
+    row = script.episode(("oracle", 1000, 0, None))
+    assert row["success"] and row["held_chunks"] > 0
+    assert row["min_to_destination"] < 0.01 < row["min_to_other"]
+    assert row["subgoal_nearer_destination"] is None and row["subgoal_to_destination_median"] is None  # no grounding
+    assert row["final_to_destination"] < 0.01 and row["final_height"] > 0.05 and not row["final_held"]

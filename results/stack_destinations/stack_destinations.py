@@ -63,6 +63,7 @@ def episode(job: tuple) -> dict:
     env = shared_env(IMAGE_SIZE)
     policy = _Logged(load_policy(policy_spec), env, load_policy(grounding_spec) if grounding_spec else None)
     result = run_episode(TASK, derive_seed(seed, TASK, index), policy, image_size=IMAGE_SIZE)
+    final = env.scene()  # as the episode left it: where the named block ended
     top, base = result.params
     row = {"seed": seed, "index": index, "instruction": result.instruction, "success": result.success,
            "held_chunks": 0}
@@ -73,9 +74,16 @@ def episode(job: tuple) -> dict:
         # Chunks whose sub-goal lies nearer the destination than the other block (None without a grounding).
         subgoal_nearer = sum(1 for p, g in held if np.linalg.norm(g[:2] - p[base][:2])
                              < np.linalg.norm(g[:2] - p[other][:2])) if policy.grounded else None
+        # How far (xy) the sub-goal lies from the destination block, over the chunks with the block held.
+        subgoal_off = [float(np.linalg.norm(g[:2] - p[base][:2])) for p, g in held] if policy.grounded else None
         row.update(held_chunks=len(held), min_to_destination=min(to[base]), min_to_other=min(to[other]),
                    last_to_destination=to[base][-1], last_to_other=to[other][-1],
-                   subgoal_nearer_destination=subgoal_nearer)
+                   subgoal_nearer_destination=subgoal_nearer,
+                   subgoal_to_destination_median=float(np.median(subgoal_off)) if subgoal_off else None,
+                   subgoal_to_destination_last=subgoal_off[-1] if subgoal_off else None)
+    # Where the named block ended (xy from the destination, and its height): on top, beside, or in the hand.
+    row.update(final_to_destination=float(np.linalg.norm(final.block_position(top)[:2] - final.block_position(base)[:2])),
+               final_height=float(final.block_position(top)[2]), final_held=bool(final.is_held(top)))
     return row
 
 
@@ -95,12 +103,17 @@ if __name__ == "__main__":
     with open(args[1], "w") as out:
         json.dump(rows, out, indent=1)
     print("| seed | episode | success | chunks holding the block | closest to destination / other [cm] | "
-          "at the last such chunk [cm] | sub-goal nearer the destination (chunks) | instruction |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+          "at the last such chunk [cm] | sub-goal nearer the destination (chunks) | sub-goal to destination, "
+          "median / last held chunk [cm] | block's end: from destination [cm], height [cm] | instruction |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         near = (f"{100 * r['min_to_destination']:.1f} / {100 * r['min_to_other']:.1f} | "
                 f"{100 * r['last_to_destination']:.1f} / {100 * r['last_to_other']:.1f} | "
                 f"{'-' if r['subgoal_nearer_destination'] is None else r['subgoal_nearer_destination']}"
                 ) if r["held_chunks"] else "- | - | -"
+        off = (f"{100 * r['subgoal_to_destination_median']:.1f} / {100 * r['subgoal_to_destination_last']:.1f}"
+               if r.get("subgoal_to_destination_median") is not None else "-")
+        end = (f"{100 * r['final_to_destination']:.1f}, {100 * r['final_height']:.1f}"
+               + (" (held)" if r["final_held"] else "")) if "final_to_destination" in r else "-"
         print(f"| {r['seed']} | {r['index']} | {'yes' if r['success'] else 'no'} | {r['held_chunks']} | {near} | "
-              f"{r['instruction']} |")
+              f"{off} | {end} | {r['instruction']} |")

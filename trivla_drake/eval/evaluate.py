@@ -218,9 +218,26 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
             "failures": [
                 {"seed": c["seed"], "completed": c["completed"], "reason": c["reason"]} for c in chains if c["reason"]
             ],
+            # Each chain's tasks in order, up to and including the one that failed (older reports lack it).
+            "tasks": [[s["task"] for s in c.get("subtasks", ())] for c in chains],
         }
+        report["chains"]["by_position"] = chain_success_by_position(report["chains"]["tasks"], completed)
     report["config"] = {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
     return report
+
+
+def chain_success_by_position(tasks: list[list[str]], completed: list[int]) -> list[dict]:
+    """Per chain position k = 1..5: how many chains tried a k-th task, how many did it, and which failed.
+
+    The k-th task is tried only after k - 1 successes, so this is CALVIN's "completed at least k" table
+    taken apart into conditional rates: where along a chain the policy breaks, and on what.
+    """
+    rows = []
+    for k in range(CHAIN_LENGTH):
+        tried = [(t, c) for t, c in zip(tasks, completed) if len(t) > k]
+        failed = sorted(t[k] for t, c in tried if c == k)
+        rows.append({"position": k + 1, "tried": len(tried), "succeeded": len(tried) - len(failed), "failed_tasks": failed})
+    return rows
 
 
 def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
@@ -254,6 +271,13 @@ def format_markdown(report: dict) -> str:
             f"| {c['count']} | " + " | ".join(f"{x:.2f}" for x in c["completed_at_least"])
             + f" | {report['chain_avg_len']:.2f} ± {report['chain_avg_len_stderr']:.2f} |",
         ]
+        if "by_position" in c:
+            lines += [
+                "",
+                "| chain position | 1 | 2 | 3 | 4 | 5 |",
+                "| --- | --- | --- | --- | --- | --- |",
+                "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in c["by_position"]) + " |",
+            ]
     failures = [(name, f) for name, row in report["tasks"].items() for f in row["failures"]]
     failures += [(f"chain ({f['completed']}/5 done)", f) for f in report.get("chains", {}).get("failures", [])]
     if failures:

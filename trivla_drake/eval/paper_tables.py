@@ -261,9 +261,14 @@ def format_tables(report: dict) -> str:
         lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |"]
         lines += [f"| {share} | {result['average_success']:.2f} ± {result['average_stderr']:.2f} |"
                   for share, result in (("100%", main), ("10%", data10))]
+        recipe = report.get("data100_recipe")  # a joined report: the 100% row of the 10% arm's own recipe
+        if recipe:
+            lines.append(f"| {recipe['label']} | {recipe['average_success']:.2f} ± {recipe['average_stderr']:.2f} |")
     lines += ["", "## Latency-aware simulation", "", "| simulation | success | control Hz (sim time) |", "| --- | --- | --- |"]
     for label, row in report["latency"].items():
         lines.append(f"| {label} | {row['success_rate']:.2f} | {row['control_hz']:.1f} |")
+    if report.get("notes"):
+        lines += ["", "Notes:", ""] + [f"- {note}" for note in report["notes"]]
     return "\n".join(lines)
 
 
