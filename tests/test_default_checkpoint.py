@@ -52,7 +52,7 @@ def test_shipped_checkpoint_solves_a_training_task_on_an_unseen_scene():
 
 
 def test_the_shipped_checkpoints_stored_tables_are_its_own(monkeypatch):
-    """results/grounding_scenes/tables/report.md (reproduce step 46; results/report.md is the soup's it re-fits)
+    """results/grounding_scenes/tables/report.md (reproduce step 46; results/report.md joins it with the soup's arms)
     must come from models/trivla_cpu: every evaluation it needs is found in results/evaluations/ under this
     checkpoint's contents (nothing is run), and gives its figures."""
     from trivla_drake.eval import paper_tables
