@@ -899,7 +899,8 @@ fi
 #     chains (seeds 1005, 1006) whose reports give each chain's tasks and the success at each chain position
 #     (`chains.by_position`); its twelve stack episodes of seeds 1000-1005 with where the block ends
 #     (results/stack_destinations/refit.md); place in bowl and stack with the oracle's release position as the
-#     sub-goal while the block is held (results/subgoal_diagnostics/release/).
+#     sub-goal while the block is held (results/subgoal_diagnostics/release/); the lamp presses after a rotation or a
+#     drawer task (results/grounding_scenes/lamp_after_prelude.md).
 for seed in 1005 1006; do
   trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
       --json > "results/grounding_scenes/refit_chains20_seed$seed.json"
@@ -909,6 +910,8 @@ done
 "${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/stack_destinations/refit.json \
     > results/stack_destinations/refit.md
 "${PYTHON:-python}" results/subgoal_diagnostics/true_release.py 1000,1001,1002,1003,1004,1005 results/subgoal_diagnostics/release
+"${PYTHON:-python}" results/grounding_scenes/lamp_after_prelude.py results/grounding_scenes/lamp_after_prelude.json 3 \
+    > results/grounding_scenes/lamp_after_prelude.md
 if [[ -f results/report.json && ! -f results/model_soup/tables/report.json ]]; then
   mkdir -p results/model_soup/tables
   mv results/report.json results/report.md results/per_task_success.png results/ablation.png results/model_soup/tables/

@@ -466,3 +466,5 @@ def test_step_48_joins_the_shipped_tables_with_the_soups_arms_after_both_are_mad
     release = next(argv for argv in every_call if argv[:2] == ["python", "results/subgoal_diagnostics/true_release.py"])
     assert stack[2] == "models/trivla_cpu" and release[2:] == ["1000,1001,1002,1003,1004,1005",
                                                                "results/subgoal_diagnostics/release"]
+    lamp = next(argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/lamp_after_prelude.py"])
+    assert lamp[2:] == ["results/grounding_scenes/lamp_after_prelude.json", "3"]  # the shipped checkpoint by default
