@@ -917,3 +917,26 @@ if [[ -f results/report.json && ! -f results/model_soup/tables/report.json ]]; t
   mv results/report.json results/report.md results/per_task_success.png results/ablation.png results/model_soup/tables/
 fi
 "${PYTHON:-python}" results/join_shipped_report.py
+# 49. Optional (SHIPPED_FOLLOW=1, after step 46; results/shipped_follow/): the shipped model's System 1 followed 2500
+#     steps on MORE_DATA with step 42's command (its re-fitted grounding kept, seed 46), so that System 1 learns with
+#     the sub-goals of the grounding it runs with; exported; 80 chains, the preludes and eighteen seeds, compared with
+#     the shipped model.
+if [[ "${SHIPPED_FOLLOW:-0}" == 1 ]]; then
+  SF=results/shipped_follow
+  mkdir -p "$SF"
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MORE_DATA" --out "$RUNS/shipfollow" --init models/trivla_cpu \
+      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 2500 --seed 46 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/shipfollow/final" --out "$RUNS/shipfollow_export" --drop-unused-llm-layers
+  forty_chains "$RUNS/shipfollow_export" "$SF/shipfollow"
+  preludes "$RUNS/shipfollow_export" "$SF/shipfollow"
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/shipfollow_export" "$SF/shipfollow"
+  for seed in 1005 1006; do
+    trivla-drake evaluate --policy "$RUNS/shipfollow_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
+        --no-progress --json > "$SF/shipfollow_chains20_seed$seed.json"
+  done
+  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$SF"/shipfollow_chains20_seed100{3,4,5,6}.json \
+      > "$SF/chain_positions.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$SF/compare.png" \
+      shipped=results/grounding_scenes/refit shipfollow="$SF/shipfollow" > "$SF/compare.md"
+fi

@@ -46,7 +46,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "DART_FOLLOW": "1", "DETOURS": "1", "TWISTS": "1", "MISSES": "1", "DRIFTS": "1",
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
-           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1",
+           "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -457,7 +457,7 @@ def test_step_48_joins_the_shipped_tables_with_the_soups_arms_after_both_are_mad
     arms (step 31); and the stack and carrying-sub-goal diagnostics run on the shipped checkpoint."""
     scripts = [argv[1] for argv in every_call if argv[0] == "python"]
     join = scripts.index("results/join_shipped_report.py")
-    assert join == len(scripts) - 1 and join > scripts.index("results/join_data_efficiency.py")
+    assert join > len(scripts) - 1 - scripts[::-1].index("results/join_data_efficiency.py")  # after the last soup join
     calls_before = every_call[: next(i for i, argv in enumerate(every_call)
                                      if argv[:2] == ["python", "results/join_shipped_report.py"])]
     assert any(argv[0] == "tables" and option(argv, "--out") == "results/grounding_scenes/tables" for argv in calls_before)
@@ -468,3 +468,16 @@ def test_step_48_joins_the_shipped_tables_with_the_soups_arms_after_both_are_mad
                                                                "results/subgoal_diagnostics/release"]
     lamp = next(argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/lamp_after_prelude.py"])
     assert lamp[2:] == ["results/grounding_scenes/lamp_after_prelude.json", "3"]  # the shipped checkpoint by default
+
+
+def test_step_49_follows_the_shipped_model_with_step_42s_command_and_evaluates_it_as_the_shipped_one(calls):
+    """Step 49 (optional): the shipped checkpoint's System 1 followed with the soup follows' command but for the
+    start and seed; its export evaluated on the shipped model's chains, preludes and eighteen seeds."""
+    follow, soup_follow = run_writing(calls, "runs/shipfollow"), run_writing(calls, "runs/soupfollow41")
+    assert option(follow, "--init") == "models/trivla_cpu" and option(follow, "--seed") == "46"
+    assert _without(follow, "--out", "--seed") == _without(soup_follow, "--out", "--seed")
+    runs = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/shipfollow_export"]
+    assert sorted(option(a, "--seed") for a in runs if option(a, "--chains") == "20") == ["1003", "1004", "1005", "1006"]
+    assert sorted(int(option(a, "--seed")) for a in runs
+                  if option(a, "--chains") is None and option(a, "--prelude") is None) == list(range(1000, 1018))
+    assert len([a for a in runs if option(a, "--prelude") is not None]) == 4
