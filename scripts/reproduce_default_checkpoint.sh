@@ -905,8 +905,10 @@ for seed in 1005 1006; do
   trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
       --json > "results/grounding_scenes/refit_chains20_seed$seed.json"
 done
-"${PYTHON:-python}" results/grounding_scenes/chain_positions.py results/grounding_scenes/refit_chains20_seed100{3,4,5,6}.json \
-    > results/grounding_scenes/chain_positions.md
+G=results/grounding_scenes
+"${PYTHON:-python}" $G/chain_positions.py $G/refit_chains20_seed100{3,4,5,6}.json \
+    --expected "from the start=$(ls $G/refit_seed10??.json | paste -sd,)" \
+    --expected "after one prelude=$(ls $G/refit_prelude1_seed100?.json | paste -sd,)" > $G/chain_positions.md
 "${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/stack_destinations/refit.json \
     > results/stack_destinations/refit.md
 "${PYTHON:-python}" results/subgoal_diagnostics/true_release.py 1000,1001,1002,1003,1004,1005 results/subgoal_diagnostics/release

@@ -205,6 +205,13 @@ def test_chain_positions_pools_the_reports_and_refuses_one_without_positions(tmp
     assert table.splitlines()[0] == "3 chains, Avg. Len 0.67"
     assert "| 1 | 3 | 2 | 0.67 | stack_block 1 |" in table
     assert "| 2 | 2 | 0 | 0.00 | lift_block 1, stack_block 1 |" in table and "| 3 | 0 | 0 | - | - |" in table
+    rates = tmp_path / "rates.json"  # an evaluate report: stack 1 of 2, lift 0 of 2, the others 2 of 2
+    rates.write_text(json.dumps({"tasks": {t: {"successes": {"stack_block": 1, "lift_block": 0}.get(t, 2), "episodes": 2}
+                                           for t in TASK_NAMES}}))
+    table = script.main([str(p) for p in paths] + ["--expected", f"from the start={rates}"])
+    assert "| position | tried | succeeded | rate | expected from the start | failed tasks |" in table
+    assert "| 1 | 3 | 2 | 0.67 | 2.5 | stack_block 1 |" in table  # stack 0.5 + open 1 + turn on 1
+    assert "| 2 | 2 | 0 | 0.00 | 0.5 | lift_block 1, stack_block 1 |" in table
     del two["chains"]["by_position"]
     paths[1].write_text(json.dumps(two))
     with pytest.raises(ValueError, match="two.json: no chains.by_position"):
