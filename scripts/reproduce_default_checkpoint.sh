@@ -938,7 +938,8 @@ if [[ "${SHIPPED_FOLLOW:-0}" == 1 ]]; then
         --no-progress --json > "$SF/shipfollow_chains20_seed$seed.json"
   done
   "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$SF"/shipfollow_chains20_seed100{3,4,5,6}.json \
-      > "$SF/chain_positions.md"
+      --expected "from the start=$(ls "$SF"/shipfollow_seed10??.json | paste -sd,)" \
+      --expected "after one prelude=$(ls "$SF"/shipfollow_prelude1_seed100?.json | paste -sd,)" > "$SF/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$SF/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow="$SF/shipfollow" > "$SF/compare.md"
 fi
