@@ -55,3 +55,12 @@ def test_the_table_counts_each_prelude_and_leaves_out_episodes_without_one(scrip
              "ran_prelude": []}]
     table = script.table(rows)
     assert "| open_drawer | 1 / 1 | 0 / 1 | 1 |" in table and "| rotate_block_left | 0 / 0 | 0 / 0 | - |" in table
+
+
+def test_one_run_has_its_prelude_done_first_and_notes_the_yaw(script):
+    """The script's episode with the oracle in the policy's place: the drawer prelude, then the press."""
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    row = script.run(script._YawAtStart(OraclePolicy()), OraclePolicy(), "open_drawer", "turn_on_light", 0)
+    assert row["ran_prelude"] == ["open_drawer"] and row["success"], row["reason"]
+    assert row["yaw_off_deg"] is not None and 0.0 <= row["yaw_off_deg"] <= 90.0

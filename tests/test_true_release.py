@@ -26,7 +26,9 @@ def _grounded_checkpoint(folder):
 def test_the_release_replaces_the_subgoal_only_while_the_named_block_is_held(tmp_path, results_script, monkeypatch):
     script = results_script("subgoal_diagnostics/true_release.py")
     policy = script.TrueRelease.from_checkpoint(_grounded_checkpoint(tmp_path / "model"))
-    monkeypatch.setattr(script.TriVLAHarnessPolicy, "act", lambda self, obs: np.zeros((1, 7)))
+    from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
+
+    monkeypatch.setattr(TriVLAHarnessPolicy, "act", lambda self, obs: np.zeros((1, 7)))  # no model run
     layout = Layout.default()
     spec, instance = sample_task_instance(get_task("stack_block"), np.random.default_rng(3), layout)
     scene = scene_from_spec(spec, layout)
@@ -37,20 +39,25 @@ def test_the_release_replaces_the_subgoal_only_while_the_named_block_is_held(tmp
     np.testing.assert_allclose(policy.release, release)
     # The release lies over the destination block, not where the block to pick up is.
     assert np.linalg.norm(release[:2] - scene.block_position(instance.params[1])[:2]) < 0.01
-    assert not policy.held and policy.overrides == 0
+    assert policy.true is None and policy.overrides == 0  # not held: the grounding's own sub-goal
+
+    monkeypatch.setattr(type(scene), "is_held", lambda self, color: color == instance.params[0])
+    policy.act({"privileged": {"scene": scene, "task": instance}})
+    np.testing.assert_allclose(policy.true, release)
+    assert policy.overrides == 1
 
     system1 = policy.model.policy
     vl = torch.randn(1, system1.vl_fixed_positions + 5, system1.vl_proj.out_features)  # tokens at DiT width
     mask = torch.ones(vl.shape[:2], dtype=torch.bool)
     tcp = torch.zeros(1, 9)
-    _, own = system1._ground(vl, mask, tcp)
-    policy.held = True
     _, carried = system1._ground(vl, mask, tcp)
     expected = normalize_position(torch.as_tensor(release, dtype=carried.dtype))
     torch.testing.assert_close(carried[0, :3], expected)
+    policy.true = None
+    _, own = system1._ground(vl, mask, tcp)
     assert not torch.allclose(own[0, :3], expected)
     policy.reset("another", 1)  # a new episode draws its release again
-    assert policy.release is None and not policy.held
+    assert policy.release is None
 
 
 def test_the_script_evaluates_place_and_stack_on_each_seed(tmp_path, results_script, monkeypatch, capsys):

@@ -47,7 +47,7 @@ class _YawAtStart:
 
 
 def forced_prelude(name: str):
-    """A stand-in for `tasks.chains.prelude_task` that always draws task `name` (None where it cannot run)."""
+    """A `run_episode(prelude_draw=...)` that always draws task `name` (None where it cannot run)."""
 
     def draw(scene, rng, exclude):
         params = TASKS[name].candidates(scene)
@@ -60,16 +60,11 @@ def forced_prelude(name: str):
 
 
 def run(policy, oracle, prelude: str, lamp: str, index: int) -> dict:
-    original = ep.prelude_task
-    ep.prelude_task = forced_prelude(prelude)
-    try:
-        for redraw in range(REDRAWS + 1):
-            result = ep.run_episode(lamp, ep.derive_seed(3000, lamp, prelude, index, redraw), policy, image_size=224,
-                                    prelude=1, prelude_policy=oracle)
-            if not result.reason.startswith("prelude"):
-                break
-    finally:
-        ep.prelude_task = original
+    for redraw in range(REDRAWS + 1):
+        result = ep.run_episode(lamp, ep.derive_seed(3000, lamp, prelude, index, redraw), policy, image_size=224,
+                                prelude=1, prelude_policy=oracle, prelude_draw=forced_prelude(prelude))
+        if not result.reason.startswith("prelude"):
+            break
     return {"prelude": prelude, "task": lamp, "index": index, "success": result.success, "reason": result.reason,
             "yaw_off_deg": policy.yaw_off, "ran_prelude": list(result.prelude)}
 

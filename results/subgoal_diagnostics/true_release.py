@@ -13,48 +13,32 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trivla_drake.action import GRIPPER_OPEN
-from trivla_drake.eval import evaluate as ev
-from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
-from trivla_drake.nn.panda_tcp import normalize_position
-from trivla_drake.tasks.suite import get_task
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from true_subgoal import TrueSubgoal  # noqa: E402  (a script beside this one, not a package)
+
+from trivla_drake.action import GRIPPER_OPEN  # noqa: E402
+from trivla_drake.eval import evaluate as ev  # noqa: E402
+from trivla_drake.tasks.suite import get_task  # noqa: E402
 
 TASKS = ["place_in_bowl", "stack_block"]
 
 
-class TrueRelease(TriVLAHarnessPolicy):
-    """The oracle's release position as the sub-goal while the task's block is in the hand."""
-
-    privileged = True
+class TrueRelease(TrueSubgoal):
+    """TrueSubgoal's override with the oracle's release position while the task's block is in the hand."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.release = None  # this episode's release position [m], from the plan at its first chunk
-        self.held = False
-        self.overrides = 0  # chunks planned with the release as the sub-goal
-        original = self.model.policy._ground
-
-        def ground(vl, vl_mask, tcp, *rest):  # rest: the gripper's closure, for a grounding that reads it
-            goal, subgoal = original(vl, vl_mask, tcp, *rest)
-            if self.held and self.release is not None:
-                subgoal = subgoal.clone()
-                subgoal[:, :3] = normalize_position(torch.as_tensor(self.release, dtype=subgoal.dtype))[None]
-            return goal, subgoal
-
-        self.model.policy._ground = ground
 
     def reset(self, instruction, seed):
-        self.release, self.held = None, False
+        self.release = None
         return super().reset(instruction, seed)
 
-    def act(self, observation):
-        scene, task = observation["privileged"]["scene"], observation["privileged"]["task"]
+    def true_position(self, scene, inst):
         if self.release is None:
-            opens = [wp for wp in get_task(task.task).plan(task.params, scene) if wp.gripper == GRIPPER_OPEN]
+            opens = [wp for wp in get_task(inst.task).plan(inst.params, scene) if wp.gripper == GRIPPER_OPEN]
             self.release = np.asarray(opens[-1].pose[:3, 3], dtype=np.float64)
-        self.held = scene.is_held(task.params[0])
-        self.overrides += self.held
-        return super().act(observation)
+        return self.release if scene.is_held(inst.params[0]) else None
 
 
 def main() -> None:

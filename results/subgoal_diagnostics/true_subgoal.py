@@ -25,16 +25,18 @@ class TrueSubgoal(TriVLAHarnessPolicy):
             return goal, sub
         pol._ground = ground
         self.overrides = 0
+    def true_position(self, scene, inst):
+        """The position [m] System 1 reads as its sub-goal for this chunk, or None for the grounding's own:
+        here the plan's first close while no block is held."""
+        if scene.held_block() is not None:
+            return None
+        closes = [wp for wp in get_task(inst.task).plan(inst.params, scene) if wp.gripper == GRIPPER_CLOSE]
+        return np.asarray(closes[0].pose[:3, 3], dtype=np.float64) if closes else None
+
     def act(self, observation):
         priv = observation["privileged"]
-        scene, inst = priv["scene"], priv["task"]
-        self.true = None
-        if scene.held_block() is None:
-            plan = get_task(inst.task).plan(inst.params, scene)
-            closes = [wp for wp in plan if wp.gripper == GRIPPER_CLOSE]
-            if closes:
-                self.true = np.asarray(closes[0].pose[:3, 3], dtype=np.float64)
-                self.overrides += 1
+        self.true = self.true_position(priv["scene"], priv["task"])
+        self.overrides += self.true is not None
         return super().act(observation)
 
 GRASP_TASKS = ["lift_block", "place_in_bowl", "stack_block", "rotate_block_left"]

@@ -194,15 +194,16 @@ def _run_subtask(
 
 def _run_prelude(
     env: TabletopEnv, obs: dict, policy: Policy, task_name: str, count: int, rng: np.random.Generator,
-    paraphrase: bool,
+    paraphrase: bool, draw=prelude_task,
 ) -> tuple[dict, TaskInstance | None, list[str], str]:
-    """`policy` completes `count` other tasks of a chain from the env's current state, unrecorded; then
-    `task_name`'s parameters and instruction are drawn in the state they left. Returns (obs, the
-    instance or None, the tasks completed, why there is no instance)."""
+    """`policy` completes `count` other tasks of a chain from the env's current state, unrecorded, each
+    drawn by `draw(scene, rng, exclude)` (default: uniform over the tasks possible); then `task_name`'s
+    parameters and instruction are drawn in the state they left. Returns (obs, the instance or None,
+    the tasks completed, why there is no instance)."""
     done: list[str] = []
     unrecorded = _Recorder(False, None, env.action_space.control_rate_hz)
     for _ in range(count):
-        step = prelude_task(env.scene(), rng, exclude={task_name, *done})
+        step = draw(env.scene(), rng, exclude={task_name, *done})
         if step is None:
             return obs, None, done, f"prelude: no task can run after {done or 'the start'}"
         sub, obs = _run_subtask(env, obs, policy, step, int(rng.integers(2**31)), get_task(step.task).max_steps,
@@ -232,6 +233,7 @@ def run_episode(
     action_noise: Disturbance | None = None,
     prelude: int = 0,
     prelude_policy: Policy | None = None,
+    prelude_draw=None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
 
@@ -244,7 +246,8 @@ def run_episode(
     of a chain (never a lift, which leaves a block in the hand), unrecorded and undisturbed, and the
     episode's task starts where they left the scene and the hand, as the later tasks of a chain do;
     its parameters and instruction are drawn in that state. A prelude that fails, or leaves the task
-    no way to start, fails the episode with the reason.
+    no way to start, fails the episode with the reason. `prelude_draw(scene, rng, exclude)` chooses each
+    prelude task instead (a TaskInstance, or None where none fits; default `tasks.chains.prelude_task`).
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
     never escapes. `image_size` None renders no images unless the policy uses them or a video is
@@ -269,7 +272,8 @@ def run_episode(
         obs = env.reset(spec)
         if prelude:
             obs, chained, done, why = _run_prelude(env, obs, prelude_policy, task_name, prelude,
-                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase)
+                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase,
+                                                   prelude_draw or prelude_task)
             instance = chained or instance
             if recorder.needs_images(env):  # the unrecorded prelude's last step rendered none
                 obs.update(env.images())
