@@ -135,6 +135,29 @@ def test_evaluate_with_a_prelude_starts_each_episode_after_the_oracle_s_chain_ta
     report = evaluate(EvalConfig(policy="oracle", tasks=["close_drawer"], episodes=1, prelude=1), progress=False)
     assert report["tasks"]["close_drawer"]["successes"] == 1
     assert report["config"]["prelude"] == 1
+    ((before, row),) = report["after_prelude_task"].items()
+    assert before != "close_drawer" and row == {"tried": 1, "succeeded": 1}
+
+
+def test_success_is_pooled_by_the_task_just_before_and_failures_name_their_prelude():
+    from trivla_drake.eval.evaluate import EvalConfig, format_markdown, success_after_prelude_task, summarize
+
+    def episode(task, prelude, success):
+        return {"task": task, "seed": 7, "instruction": "do it", "success": success,
+                "reason": "" if success else "timeout", **({"prelude": prelude} if prelude else {})}
+
+    episodes = [episode("lift_block", ["open_drawer"], False), episode("lift_block", ["turn_on_light", "open_drawer"], True),
+                episode("stack_block", ["turn_on_light"], True), episode("stack_block", [], False)]
+    assert success_after_prelude_task(episodes) == {"open_drawer": {"tried": 2, "succeeded": 1},
+                                                   "turn_on_light": {"tried": 1, "succeeded": 1}}
+    report = summarize(EvalConfig(tasks=["lift_block", "stack_block"], episodes=2, prelude=2), episodes, [])
+    assert report["tasks"]["lift_block"]["failures"][0]["prelude"] == ["open_drawer"]
+    assert "prelude" not in report["tasks"]["stack_block"]["failures"][0]  # its prelude never completed
+    text = format_markdown(report)
+    assert "| after the prelude's last task | open_drawer | turn_on_light |" in text
+    assert "| succeeded / tried | 1 / 2 | 1 / 1 |" in text
+    assert "- lift_block (seed 7 after open_drawer): timeout" in text
+    assert "after_prelude_task" not in summarize(EvalConfig(tasks=["lift_block"], episodes=1), episodes[:1], [])
 
 
 def test_evaluate_redraws_a_failed_prelude_then_reports_its_reason(monkeypatch):

@@ -87,6 +87,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             execute_steps=args.execute_steps,
             ensemble_decay=args.ensemble_decay,
             prelude=args.prelude,
+            home_first=args.home_first,
         )
         if args.threads < 1:
             raise ValueError(f"--threads must be at least 1, got {args.threads}")
@@ -212,6 +213,10 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                         help="start every episode after the oracle has completed this many other tasks of a chain "
                              "(unrecorded): the success of each task where a chain's later tasks start (default 0: "
                              "from the start posture; a prelude that fails is redrawn)")
+    parser.add_argument("--home-first", action="store_true",
+                        help="learned policies: at the start of every task (each of a chain's too) the hand first "
+                             "goes back to the start posture's pose, scripted, and then the policy acts; those "
+                             "steps count against the task's")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

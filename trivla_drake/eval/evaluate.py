@@ -64,6 +64,9 @@ class EvalConfig:
     # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
     # way to start is redrawn (it is no failure of the policy).
     prelude: int = 0
+    # Learned policies only: at the start of every task (each of a chain's too) the hand first goes back to
+    # the start posture's pose, scripted, then the policy acts (eval/home_first.py); its steps count.
+    home_first: bool = False
 
     def validate(self) -> None:
         if not self.tasks and self.chains <= 0:
@@ -89,21 +92,29 @@ class EvalConfig:
             from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay
 
             check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
+        if self.home_first and self.policy == "oracle":
+            raise ValueError("--home-first applies to learned policies, not to --policy oracle (it plans from "
+                             "wherever the hand is)")
 
     def policy_key(self) -> tuple:
         """What loads this config's policy (see `_policy`)."""
-        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay
+        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay, self.home_first
 
 
 def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | None = None,
-            ensemble_decay: float | None = None):
-    """The policy `spec` with these TriVLA inference settings, loaded once per process."""
+            ensemble_decay: float | None = None, home_first: bool = False):
+    """The policy `spec` with these TriVLA inference settings (wrapped in HomeFirst with `home_first`),
+    loaded once per process."""
     from trivla_drake.eval.policies import load_policy
 
-    key = (spec, noise_scale, execute_steps, ensemble_decay)
+    key = (spec, noise_scale, execute_steps, ensemble_decay, home_first)
     if key not in _POLICY_CACHE:
-        _POLICY_CACHE[key] = load_policy(spec, noise_scale, execute_steps=execute_steps,
-                                         ensemble_decay=ensemble_decay)
+        policy = load_policy(spec, noise_scale, execute_steps=execute_steps, ensemble_decay=ensemble_decay)
+        if home_first:
+            from trivla_drake.eval.home_first import HomeFirst
+
+            policy = HomeFirst(policy)
+        _POLICY_CACHE[key] = policy
     return _POLICY_CACHE[key]
 
 
@@ -191,7 +202,8 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
             "episodes": n,
             "successes": successes,
             "failures": [
-                {"seed": e["seed"], "instruction": e["instruction"], "reason": e["reason"]}
+                {"seed": e["seed"], "instruction": e["instruction"], "reason": e["reason"],
+                 **({"prelude": e["prelude"]} if e.get("prelude") else {})}
                 for e in mine
                 if not e["success"]
             ],
@@ -204,6 +216,8 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         "average_success": (sum(t["success_rate"] for t in tasks.values()) / len(tasks)) if tasks else None,
         "tasks": tasks,
     }
+    if config.prelude and episodes:
+        report["after_prelude_task"] = success_after_prelude_task(episodes)
     if chains:
         completed = [c["completed"] for c in chains]
         n = len(completed)
@@ -238,6 +252,18 @@ def chain_success_by_position(tasks: list[list[str]], completed: list[int]) -> l
         failed = sorted(t[k] for t, c in tried if c == k)
         rows.append({"position": k + 1, "tried": len(tried), "succeeded": len(tried) - len(failed), "failed_tasks": failed})
     return rows
+
+
+def success_after_prelude_task(episodes: list[dict]) -> dict[str, dict]:
+    """Per task the prelude ended with (the one just before the episode's): episodes tried and succeeded,
+    sorted by name; episodes whose prelude never completed are left out (they have no such task)."""
+    rows: dict[str, dict] = {}
+    for e in episodes:
+        if e.get("prelude"):
+            row = rows.setdefault(e["prelude"][-1], {"tried": 0, "succeeded": 0})
+            row["tried"] += 1
+            row["succeeded"] += int(bool(e["success"]))
+    return dict(sorted(rows.items()))
 
 
 def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
@@ -278,12 +304,18 @@ def format_markdown(report: dict) -> str:
                 "| --- | --- | --- | --- | --- | --- |",
                 "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in c["by_position"]) + " |",
             ]
+    if report.get("after_prelude_task"):
+        rows = report["after_prelude_task"]
+        lines += ["", "| after the prelude's last task | " + " | ".join(rows) + " |",
+                  "| --- |" + " --- |" * len(rows),
+                  "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in rows.values()) + " |"]
     failures = [(name, f) for name, row in report["tasks"].items() for f in row["failures"]]
     failures += [(f"chain ({f['completed']}/5 done)", f) for f in report.get("chains", {}).get("failures", [])]
     if failures:
         lines += ["", "failures:"]
         for name, f in failures[:20]:
-            lines.append(f"- {name} (seed {f['seed']}): {f['reason']}")
+            after = f" after {', '.join(f['prelude'])}" if f.get("prelude") else ""
+            lines.append(f"- {name} (seed {f['seed']}{after}): {f['reason']}")
         if len(failures) > 20:
             lines.append(f"- ... {len(failures) - 20} more")
     return "\n".join(lines)

@@ -1,0 +1,143 @@
+"""`--home-first` (eval/home_first.py): at the start of every task the hand first goes back to the start
+posture's pose, scripted, then the learned policy acts. The homing reaches the pose within the action bounds,
+rises before it moves sideways, keeps the gripper's command, stops at its step budget, and runs again at every
+reset; bad settings are refused by name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trivla_drake.eval.home_first import ARRIVED_M, HomeFirst, home_tcp_pose, homing_actions
+from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW, apply_action, exp_so3
+
+
+def _away(home, dx=0.2, dy=-0.15, dz=-0.25, turn=(0.0, 0.0, 1.2)):
+    X = home.copy()
+    X[:3, 3] += (dx, dy, dz)
+    X[:3, :3] = exp_so3(np.array(turn)) @ home[:3, :3]
+    return X
+
+
+def _observation(X, command=1.0, width=0.08):
+    state = np.zeros(18)
+    state[7] = state[8] = width / 2
+    return {"ee_target": X, "gripper_command": command, "state": state}
+
+
+def _integrate(X, rows):
+    path = [X]
+    for row in rows:
+        X, _ = apply_action(X, row)
+        path.append(X)
+    return path
+
+
+class Holding:
+    """A learned-looking policy that holds its pose: zeros, gripper open; counts its calls."""
+
+    name, uses_images, privileged = "holding", False, False
+
+    def __init__(self):
+        self.resets, self.calls = [], 0
+
+    def reset(self, instruction, seed):
+        self.resets.append(instruction)
+
+    def act(self, observation):
+        self.calls += 1
+        return np.tile([0, 0, 0, 0, 0, 0, 1.0], (4, 1))
+
+
+def test_homing_reaches_the_start_pose_within_the_bounds_rising_first_and_keeping_the_gripper():
+    home = home_tcp_pose()
+    start = _away(home)
+    rows = homing_actions(start, home, -1.0, 500)
+    assert 0 < len(rows) < 100
+    assert np.all(rows >= ACTION_LOW - 1e-12) and np.all(rows <= ACTION_HIGH + 1e-12)
+    assert np.all(rows[:, 6] == -1.0)  # a held block stays held
+    path = _integrate(start, rows)
+    assert np.linalg.norm(path[-1][:3, 3] - home[:3, 3]) < ARRIVED_M
+    np.testing.assert_allclose(path[-1][:3, :3], home[:3, :3], atol=0.03)
+    # Below the home height it goes straight up before anything else.
+    rising = [i for i, X in enumerate(path[:-1]) if X[2, 3] < home[2, 3] - 0.02]
+    assert rising and np.all(np.abs(rows[rising, :2]) < 1e-9) and np.all(np.abs(rows[rising, 3:6]) < 1e-9)
+    assert homing_actions(home, home, 1.0, 10).shape == (0, 7)
+
+
+def test_the_wrapper_homes_at_every_reset_then_hands_over_within_its_budget():
+    home = home_tcp_pose()
+    inner = Holding()
+    policy = HomeFirst(inner)
+    assert policy.name == "holding+home" and not policy.uses_images
+    policy.reset("lift the red block", 0)
+    X, steps = _away(home), 0
+    while True:
+        rows = policy.act(_observation(X))
+        if inner.calls:
+            break
+        steps += len(rows)
+        X = _integrate(X, rows)[-1]
+    assert 0 < steps <= policy.max_steps
+    assert np.linalg.norm(X[:3, 3] - home[:3, 3]) < ARRIVED_M
+    # The next task homes again, and a short budget hands over when it is spent.
+    short = HomeFirst(Holding(), max_steps=5)
+    short.reset("open the drawer", 1)
+    assert len(short.act(_observation(_away(home)))) == 5
+    short.act(_observation(_away(home)))
+    assert short.policy.calls == 1 and short.policy.resets == ["open the drawer"]
+    short.reset("close the drawer", 2)
+    assert len(short.act(_observation(_away(home)))) == 5
+    assert short.policy.calls == 1
+
+
+def test_the_hand_opens_unless_it_holds_a_block_and_waits_at_home_for_the_fingers():
+    home = home_tcp_pose()
+    for command, width, expected in ((1.0, 0.08, 1.0), (-1.0, 0.0, 1.0), (-1.0, 0.045, -1.0)):
+        policy = HomeFirst(Holding())
+        policy.reset("lift the red block", 0)
+        assert np.all(policy.act(_observation(_away(home), command, width))[:, 6] == expected)
+    at_home = HomeFirst(Holding())
+    at_home.reset("lift the red block", 0)
+    rows = at_home.act(_observation(home, -1.0, 0.0))  # home already, closed on nothing: open, wait
+    assert len(rows) > 0 and np.all(rows[:, :6] == 0) and np.all(rows[:, 6] == 1.0)
+    at_home.act(_observation(home, 1.0, 0.08))  # open now: the policy acts
+    assert at_home.policy.calls == 1
+
+
+def test_in_the_simulator_a_later_task_starts_from_the_start_pose():
+    from trivla_drake.eval.episode import run_episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    result = run_episode("turn_on_light", 123, HomeFirst(Holding()), keep_trajectory=True, prelude=1,
+                         prelude_policy=OraclePolicy(), max_steps=90)
+    assert len(result.prelude) == 1, result.reason
+    tcp = np.asarray(result.trajectory.tcp_poses)
+    home = home_tcp_pose()
+    assert np.linalg.norm(tcp[0][:3] - home[:3, 3]) > 0.05  # the prelude left the hand elsewhere
+    assert np.linalg.norm(tcp[-1][:3] - home[:3, 3]) < 0.015  # measured, after the homing and a hold
+
+
+def test_bad_settings_are_refused_by_name():
+    from trivla_drake.eval.evaluate import EvalConfig
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    with pytest.raises(ValueError, match="max_steps"):
+        HomeFirst(Holding(), max_steps=0)
+    with pytest.raises(ValueError, match="oracle"):
+        HomeFirst(OraclePolicy())
+    with pytest.raises(ValueError, match="--home-first"):
+        EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, home_first=True).validate()
+
+
+def test_the_cli_flag_wraps_the_policy_and_refuses_the_oracle(capsys):
+    from trivla_drake.cli import main
+    from trivla_drake.eval.evaluate import EvalConfig, _policy
+
+    assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block", "--episodes", "1", "--home-first",
+                 "--no-progress"]) == 2
+    assert "--home-first applies to learned policies" in capsys.readouterr().err
+    config = EvalConfig(policy="random", tasks=["lift_block"], episodes=1, home_first=True)
+    wrapped = _policy(*config.policy_key())
+    assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
+    assert not isinstance(_policy("random"), HomeFirst)

@@ -1,0 +1,105 @@
+"""`HomeFirst`: a policy wrapper that, at the start of every (sub)task, first brings the commanded tool-centre
+point back to the start posture's pose and only then hands over to the wrapped policy.
+
+In a chain every task but the first starts where the one before it left the hand (by a drawer handle, above a
+moved block, turned by a rotation); the demonstrations mostly start from the start posture. Going home first
+makes a later task start the way a first one does, with only the scene changed. The homing is scripted (no
+learning): the hand rises straight up to the home height if it is below it, then moves and turns to the home
+pose along a straight line, each step within the action bounds. The hand opens, as it is at the start
+posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
+hand. Its steps count against the task's step budget like any others.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trivla_drake.systems.action_executor import GRIPPER_CLOSE, GRIPPER_OPEN, apply_action, delta_action, log_so3
+from trivla_drake.tasks.scene import HOME_ARM_Q
+
+# A hand within these of the home pose has arrived [m], [rad].
+ARRIVED_M, ARRIVED_RAD = 0.005, 0.03
+# Steps of one homing chunk; the longest homing the wrapper allows (36 Hz: 3 s).
+CHUNK_STEPS, MAX_HOMING_STEPS = 12, 108
+# Below the home height by more than this, the hand first rises straight up [m].
+RISE_FIRST_M = 0.02
+# A closed hand whose fingers stay further apart than this holds something [m] (a block: 0.045).
+HOLDING_WIDTH_M = 0.01
+# An open hand's fingers are this far apart or more [m] (fully open: 0.08).
+OPEN_WIDTH_M = 0.075
+
+
+def home_tcp_pose() -> np.ndarray:
+    """The tool-centre point's pose (4x4, world) at the start posture `HOME_ARM_Q`."""
+    import torch
+
+    from trivla_drake.nn.panda_tcp import PandaTcpFeatures
+
+    with torch.no_grad():
+        return PandaTcpFeatures().pose(torch.tensor(HOME_ARM_Q[None], dtype=torch.float64))[0].double().numpy()
+
+
+def homing_actions(commanded: np.ndarray, home: np.ndarray, gripper: float, steps: int) -> np.ndarray:
+    """Up to `steps` actions (k, 7) taking the commanded pose `commanded` towards `home` (rising first when
+    well below it), stopping once arrived; (0, 7) when it already is."""
+    rows, X = [], np.array(commanded, dtype=float)
+    for _ in range(steps):
+        if _arrived(X, home):
+            break
+        goal = home
+        if X[2, 3] < home[2, 3] - RISE_FIRST_M:  # straight up first: away from handles and blocks
+            goal = X.copy()
+            goal[2, 3] = home[2, 3]
+        action = delta_action(X, goal, gripper)
+        rows.append(action)
+        X, _ = apply_action(X, action)
+    return np.array(rows, dtype=float).reshape(-1, 7)
+
+
+def homing_gripper(observation: dict) -> float:
+    """Open (+1), unless the hand is closed on something (-1): commanded closed with the measured fingers
+    (the state's entries 7 and 8, [m] each) further apart than `HOLDING_WIDTH_M`."""
+    return GRIPPER_CLOSE if observation["gripper_command"] <= 0 and _width(observation) > HOLDING_WIDTH_M else GRIPPER_OPEN
+
+
+def _width(observation: dict) -> float:
+    return float(observation["state"][7] + observation["state"][8])
+
+
+def _arrived(X: np.ndarray, home: np.ndarray) -> bool:
+    return (np.linalg.norm(X[:3, 3] - home[:3, 3]) < ARRIVED_M
+            and np.linalg.norm(log_so3(home[:3, :3] @ X[:3, :3].T)) < ARRIVED_RAD)
+
+
+class HomeFirst:
+    """Wraps a Policy (reset / act): each reset starts a homing phase (at most `max_steps` control steps)
+    that ends when the commanded pose reaches the start posture's; then `policy` acts."""
+
+    privileged = False
+
+    def __init__(self, policy, *, max_steps: int = MAX_HOMING_STEPS):
+        if getattr(policy, "privileged", False):
+            raise ValueError("HomeFirst wraps learned policies; the oracle plans from wherever the hand is")
+        if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
+            raise ValueError(f"max_steps must be an integer >= 1 (control steps), got {max_steps!r}")
+        self.policy = policy
+        self.name = f"{policy.name}+home"
+        self.uses_images = policy.uses_images
+        self.max_steps = max_steps
+        self._home = home_tcp_pose()
+        self._homing_left = 0
+
+    def reset(self, instruction: str, seed: int) -> None:
+        self._homing_left = self.max_steps
+        self.policy.reset(instruction, seed)
+
+    def act(self, observation: dict) -> np.ndarray:
+        if self._homing_left > 0:
+            gripper, steps = homing_gripper(observation), min(CHUNK_STEPS, self._homing_left)
+            rows = homing_actions(observation["ee_target"], self._home, gripper, steps)
+            if not len(rows) and gripper == GRIPPER_OPEN and _width(observation) < OPEN_WIDTH_M:
+                rows = np.tile(np.r_[np.zeros(6), GRIPPER_OPEN], (steps, 1))  # at home: wait for the fingers to open
+            self._homing_left = self._homing_left - len(rows) if len(rows) else 0
+            if len(rows):
+                return rows
+        return self.policy.act(observation)
