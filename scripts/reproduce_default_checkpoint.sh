@@ -943,3 +943,13 @@ if [[ "${SHIPPED_FOLLOW:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$SF/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow="$SF/shipfollow" > "$SF/compare.md"
 fi
+# 50. Optional (HOME_FIRST=1, after step 46; results/home_first/): does the hand's start limit the tasks after a
+#     prelude? The shipped model on every task after a one-task prelude (seeds 1000-1002), the hand first brought back
+#     to the start posture's pose before each task (`--home-first`); compared with step 46's refit_prelude1_seed*.json.
+if [[ "${HOME_FIRST:-0}" == 1 ]]; then
+  mkdir -p results/home_first
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --home-first \
+        --no-progress --json > "results/home_first/home_prelude1_seed$seed.json"
+  done
+fi

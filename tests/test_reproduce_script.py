@@ -47,6 +47,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
+           "HOME_FIRST": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -423,7 +424,7 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     later = every_call[at + 1:]
     assert not any(option(argv, "--out") == "models/trivla_cpu" for argv in later)  # the last write
     evaluations = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
-                   and option(argv, "--tasks") is None]
+                   and option(argv, "--tasks") is None and "--home-first" not in argv]  # step 50's are a diagnostic
     runs = [argv for argv in evaluations if option(argv, "--chains") is None and option(argv, "--prelude") is None]
     assert sorted(int(option(argv, "--seed")) for argv in runs) == list(range(1000, 1018))
     # Session 45: its 40 chains and the preludes, as the soup's; session 46 (step 48): 40 more chains.
@@ -481,3 +482,9 @@ def test_step_49_follows_the_shipped_model_with_step_42s_command_and_evaluates_i
     assert sorted(int(option(a, "--seed")) for a in runs
                   if option(a, "--chains") is None and option(a, "--prelude") is None) == list(range(1000, 1018))
     assert len([a for a in runs if option(a, "--prelude") is not None]) == 4
+
+
+def test_step_50_runs_the_preludes_with_the_hand_brought_home_first(calls):
+    homed = [argv for argv in calls if argv[0] == "evaluate" and "--home-first" in argv]
+    assert [option(a, "--seed") for a in homed] == ["1000", "1001", "1002"]
+    assert all(option(a, "--policy") == "models/trivla_cpu" and option(a, "--prelude") == "1" for a in homed)
