@@ -953,3 +953,34 @@ if [[ "${HOME_FIRST:-0}" == 1 ]]; then
         --no-progress --json > "results/home_first/home_prelude1_seed$seed.json"
   done
 fi
+# 51. Optional (WEAK_PRELUDES=1, after steps 46 and 49; results/weak_preludes/): are the tasks after a prelude short of
+#     data? A copy of MORE_DATA with 20 more prelude demonstrations (1-4 prelude tasks) of each of the seven tasks that
+#     fail most after one (lift, stack, place in bowl, push left / right, rotate left / right: 140 episodes), and
+#     step 49's follow run on it (same command and seed; only the new episodes' features are computed); the
+#     preludes, 80 chains and eighteen seeds, compared with the shipped model and step 49's.
+if [[ "${WEAK_PRELUDES:-0}" == 1 ]]; then
+  WEAK_DATA=${WEAK_DATA:-$MORE_DATA-weak}
+  [[ -d "$WEAK_DATA" ]] || cp -r "$MORE_DATA" "$WEAK_DATA"
+  trivla-drake collect --out "$WEAK_DATA" --episodes-per-task 100 --prelude-tasks 4 --workers 2 --no-progress \
+      --tasks lift_block,stack_block,place_in_bowl,push_block_left,push_block_right,rotate_block_left,rotate_block_right
+  WP=results/weak_preludes
+  mkdir -p "$WP"
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$WEAK_DATA" --out "$RUNS/weakfollow" --init models/trivla_cpu \
+      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 2500 --seed 46 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/weakfollow/final" --out "$RUNS/weakfollow_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002; do
+    trivla-drake evaluate --policy "$RUNS/weakfollow_export" --episodes 2 --prelude 1 --seed "$seed" --workers 2 \
+        --no-progress --json > "$WP/weak_prelude1_seed$seed.json"
+  done
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy "$RUNS/weakfollow_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
+        --no-progress --json > "$WP/weak_chains20_seed$seed.json"
+  done
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/weakfollow_export" "$WP/weak"
+  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$WP"/weak_chains20_seed100{3,4,5,6}.json \
+      --expected "from the start=$(ls "$WP"/weak_seed10??.json | paste -sd,)" \
+      --expected "after one prelude=$(ls "$WP"/weak_prelude1_seed100?.json | paste -sd,)" > "$WP/chain_positions.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$WP/compare.png" \
+      shipped=results/grounding_scenes/refit shipfollow=results/shipped_follow/shipfollow weak="$WP/weak" > "$WP/compare.md"
+fi

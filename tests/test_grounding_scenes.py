@@ -306,7 +306,7 @@ def test_the_true_subgoal_after_a_prelude_diagnostic_runs_the_grasp_tasks_after_
     try:
         script.main()
     finally:
-        ev._POLICY_CACHE.pop(("trivla", None, None, None), None)
+        ev._POLICY_CACHE.pop(ev.EvalConfig(policy="trivla").policy_key(), None)
     assert [(c.seed, c.prelude, c.episodes, c.workers) for c in configs] == [(1000, 1, 2, 1), (1002, 1, 2, 1)]
     assert configs[0].tasks == script.TASKS
     assert json.loads((tmp_path / "true_seed1002.json").read_text())["tasks"]["lift_block"]["successes"] == 1

@@ -47,7 +47,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
-           "HOME_FIRST": "1",
+           "HOME_FIRST": "1", "WEAK_PRELUDES": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -488,3 +488,15 @@ def test_step_50_runs_the_preludes_with_the_hand_brought_home_first(calls):
     homed = [argv for argv in calls if argv[0] == "evaluate" and "--home-first" in argv]
     assert [option(a, "--seed") for a in homed] == ["1000", "1001", "1002"]
     assert all(option(a, "--policy") == "models/trivla_cpu" and option(a, "--prelude") == "1" for a in homed)
+
+
+def test_step_51_follows_the_shipped_model_on_more_prelude_data_with_step_49_s_command(calls):
+    weak = run_writing(calls, "runs/weakfollow")
+    ship = run_writing(calls, "runs/shipfollow")
+    assert option(weak, "--data") == "data/sim-prelude-more-weak" and option(ship, "--data") == "data/sim-prelude-more"
+    assert _without(weak, "--data", "--out") == _without(ship, "--data", "--out")
+    collect = next(argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == "data/sim-prelude-more-weak")
+    assert option(collect, "--prelude-tasks") == "4" and len(option(collect, "--tasks").split(",")) == 7
+    assert calls.index(collect) < calls.index(weak)
+    evaluations = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/weakfollow_export"]
+    assert len(evaluations) == 3 + 4 + 18

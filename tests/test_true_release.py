@@ -77,7 +77,7 @@ def test_the_script_evaluates_place_and_stack_on_each_seed(tmp_path, results_scr
     try:
         script.main()
     finally:
-        ev._POLICY_CACHE.pop(("trivla", None, None, None), None)
+        ev._POLICY_CACHE.pop(ev.EvalConfig(policy="trivla").policy_key(), None)
     assert [(c.seed, c.episodes, c.workers, c.prelude) for c in configs] == [(1000, 2, 1, 0), (1003, 2, 1, 0)]
     assert configs[0].tasks == ["place_in_bowl", "stack_block"]
     assert json.loads((tmp_path / "out" / "release_seed1003.json").read_text())["tasks"]["stack_block"]["successes"] == 1

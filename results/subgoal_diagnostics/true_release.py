@@ -46,7 +46,7 @@ def main() -> None:
     torch.set_num_threads(1)
     policy = TrueRelease.from_checkpoint(sys.argv[3] if len(sys.argv) > 3 else "models/trivla_cpu")
     policy.name = "trivla+true_release"
-    ev._POLICY_CACHE[("trivla", None, None, None)] = policy
+    ev._POLICY_CACHE[ev.EvalConfig(policy="trivla").policy_key()] = policy
     out.mkdir(parents=True, exist_ok=True)
     for seed in seeds:
         report = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=TASKS, episodes=2, seed=seed, workers=1), progress=False)

@@ -46,7 +46,7 @@ def evaluate_seeds(policy, kind: str, seeds: list[int], out: str) -> None:
     """`evaluate --episodes 2` of the grasp tasks on each seed, in this process, as `policy`; writes
     OUT/KIND_seedS.json per seed."""
     torch.set_num_threads(1)
-    ev._POLICY_CACHE[("trivla", None, None, None)] = policy
+    ev._POLICY_CACHE[ev.EvalConfig(policy="trivla").policy_key()] = policy
     Path(out).mkdir(parents=True, exist_ok=True)
     for s in seeds:
         r = ev.evaluate(ev.EvalConfig(policy="trivla", tasks=GRASP_TASKS, episodes=2, seed=s, workers=1), progress=False)

@@ -31,7 +31,7 @@ def true_subgoal_policy(checkpoint: str):
 def main() -> None:
     seeds, prefix = [int(s) for s in sys.argv[1].split(",")], sys.argv[2]
     torch.set_num_threads(1)
-    ev._POLICY_CACHE[("trivla", None, None, None)] = true_subgoal_policy(sys.argv[3] if len(sys.argv) > 3 else "models/trivla_cpu")
+    ev._POLICY_CACHE[ev.EvalConfig(policy="trivla").policy_key()] = true_subgoal_policy(sys.argv[3] if len(sys.argv) > 3 else "models/trivla_cpu")
     for seed in seeds:
         config = ev.EvalConfig(policy="trivla", tasks=TASKS, episodes=2, seed=seed, workers=1, prelude=1)
         report = ev.evaluate(config, progress=False)
