@@ -891,6 +891,12 @@ if [[ "${CHAIN_STARTS:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$CS/compare.png" \
       shipped=results/grounding_scenes/refit chainfit="$CS/chainfit" soup=results/model_soup/soup3 > "$CS/compare.md"
 fi
+chain_positions() {  # chain_positions PREFIX OUT.md: the success at each chain position of PREFIX_chains20_seed1003-1006
+  #   against what PREFIX_seed10??.json (from the start) and PREFIX_prelude1_seed100?.json (after a prelude) predict
+  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$1"_chains20_seed100{3,4,5,6}.json \
+      --expected "from the start=$(ls "$1"_seed10??.json | paste -sd,)" \
+      --expected "after one prelude=$(ls "$1"_prelude1_seed100?.json | paste -sd,)" > "$2"
+}
 # 48. (Session 46, about 25 min; the shipped model unchanged) Its tables with the arms: the soup's tables (step 31,
 #     with the System 1 and 1+3 arms and the 10% arm) move to results/model_soup/tables/, and results/report.* become
 #     step 46's tables of the shipped model joined with those arms (results/join_shipped_report.py: the arms have no
@@ -906,9 +912,7 @@ for seed in 1005 1006; do
       --json > "results/grounding_scenes/refit_chains20_seed$seed.json"
 done
 G=results/grounding_scenes
-"${PYTHON:-python}" $G/chain_positions.py $G/refit_chains20_seed100{3,4,5,6}.json \
-    --expected "from the start=$(ls $G/refit_seed10??.json | paste -sd,)" \
-    --expected "after one prelude=$(ls $G/refit_prelude1_seed100?.json | paste -sd,)" > $G/chain_positions.md
+chain_positions $G/refit $G/chain_positions.md
 "${PYTHON:-python}" results/stack_destinations/stack_destinations.py models/trivla_cpu results/stack_destinations/refit.json \
     > results/stack_destinations/refit.md
 "${PYTHON:-python}" results/subgoal_diagnostics/true_release.py 1000,1001,1002,1003,1004,1005 results/subgoal_diagnostics/release
@@ -937,9 +941,7 @@ if [[ "${SHIPPED_FOLLOW:-0}" == 1 ]]; then
     trivla-drake evaluate --policy "$RUNS/shipfollow_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
         --no-progress --json > "$SF/shipfollow_chains20_seed$seed.json"
   done
-  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$SF"/shipfollow_chains20_seed100{3,4,5,6}.json \
-      --expected "from the start=$(ls "$SF"/shipfollow_seed10??.json | paste -sd,)" \
-      --expected "after one prelude=$(ls "$SF"/shipfollow_prelude1_seed100?.json | paste -sd,)" > "$SF/chain_positions.md"
+  chain_positions "$SF/shipfollow" "$SF/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$SF/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow="$SF/shipfollow" > "$SF/compare.md"
 fi
@@ -978,9 +980,7 @@ if [[ "${WEAK_PRELUDES:-0}" == 1 ]]; then
         --no-progress --json > "$WP/weak_chains20_seed$seed.json"
   done
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/weakfollow_export" "$WP/weak"
-  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$WP"/weak_chains20_seed100{3,4,5,6}.json \
-      --expected "from the start=$(ls "$WP"/weak_seed10??.json | paste -sd,)" \
-      --expected "after one prelude=$(ls "$WP"/weak_prelude1_seed100?.json | paste -sd,)" > "$WP/chain_positions.md"
+  chain_positions "$WP/weak" "$WP/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$WP/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow=results/shipped_follow/shipfollow weak="$WP/weak" > "$WP/compare.md"
 fi

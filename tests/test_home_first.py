@@ -1,7 +1,7 @@
 """`--home-first` (eval/home_first.py): at the start of every task the hand first goes back to the start
 posture's pose, scripted, then the learned policy acts. The homing reaches the pose within the action bounds,
-rises before it moves sideways, keeps the gripper's command, stops at its step budget, and runs again at every
-reset; bad settings are refused by name."""
+rises before it moves sideways, opens the hand unless it holds a block, stops at its step budget, and runs again
+at every reset; bad settings are refused by name."""
 
 from __future__ import annotations
 

@@ -500,3 +500,10 @@ def test_step_51_follows_the_shipped_model_on_more_prelude_data_with_step_49_s_c
     assert calls.index(collect) < calls.index(weak)
     evaluations = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/weakfollow_export"]
     assert len(evaluations) == 3 + 4 + 18
+
+
+def test_the_chain_position_tables_read_each_model_s_four_chain_seeds(every_call):
+    tables = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/chain_positions.py"]]
+    prefixes = ["results/grounding_scenes/refit", "results/shipped_follow/shipfollow", "results/weak_preludes/weak"]
+    assert [argv[2:6] for argv in tables] == [[f"{p}_chains20_seed{s}.json" for s in range(1003, 1007)] for p in prefixes]
+    assert all(argv.count("--expected") == 2 for argv in tables)
