@@ -984,3 +984,22 @@ if [[ "${WEAK_PRELUDES:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$WP/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow=results/shipped_follow/shipfollow weak="$WP/weak" > "$WP/compare.md"
 fi
+# 52. Optional (MORE_SCENES=1, after step 46; results/grounding_scenes/more_scenes/): is the re-fitted grounding still
+#     short of layouts? The shipped model's grounding read-out re-fitted again, 3000 steps, on 30000 rendered scenes
+#     (step 46's kind, two and a half times as many) mixed half and half with DATA's grounding frames; its sub-goal on
+#     step 46's 600 unseen scenes; eighteen seeds, 80 chains and the preludes, compared with the shipped model.
+if [[ "${MORE_SCENES:-0}" == 1 ]]; then
+  MS=results/grounding_scenes/more_scenes
+  mkdir -p "$MS"
+  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/refit30k" \
+      --scenes 30000 --steps 3000 --lr 3e-4 --report "$MS/refit30k"
+  EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/refit30k" "$MS/refit30k"
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy "$RUNS/refit30k" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
+        --no-progress --json > "$MS/refit30k_chains20_seed$seed.json"
+  done
+  preludes "$RUNS/refit30k" "$MS/refit30k"
+  chain_positions "$MS/refit30k" "$MS/chain_positions.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$MS/compare.png" \
+      shipped=results/grounding_scenes/refit refit30k="$MS/refit30k" > "$MS/compare.md"
+fi

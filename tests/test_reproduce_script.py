@@ -47,7 +47,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
-           "HOME_FIRST": "1", "WEAK_PRELUDES": "1",
+           "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -444,7 +444,8 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     assert "shipped=results/model_soup/soup3" in compare and "refit=results/grounding_scenes/refit" in compare
     copy_at = SCRIPT.read_text().index('cp -r models/trivla_cpu "$RUNS/soup3"')
     # Step 47 (optional): the re-fit again with chain-start scenes, never written over the shipped model.
-    chainfit = [argv for argv in later if argv[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    chainfit = [argv for argv in later if argv[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]
+                and argv[4] == "runs/chainfit"]
     assert [argv[2:5] for argv in chainfit] == [["models/trivla_cpu", "data/sim", "runs/chainfit"]]
     assert [option(chainfit[0], k) for k in ("--scenes", "--chain-starts")] == ["8000", "0.5"]
     assert sorted(int(option(argv, "--seed")) for argv in later if argv[0] == "evaluate"
@@ -504,6 +505,25 @@ def test_step_51_follows_the_shipped_model_on_more_prelude_data_with_step_49_s_c
 
 def test_the_chain_position_tables_read_each_model_s_four_chain_seeds(every_call):
     tables = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/chain_positions.py"]]
-    prefixes = ["results/grounding_scenes/refit", "results/shipped_follow/shipfollow", "results/weak_preludes/weak"]
+    prefixes = ["results/grounding_scenes/refit", "results/shipped_follow/shipfollow", "results/weak_preludes/weak",
+                "results/grounding_scenes/more_scenes/refit30k"]
     assert [argv[2:6] for argv in tables] == [[f"{p}_chains20_seed{s}.json" for s in range(1003, 1007)] for p in prefixes]
     assert all(argv.count("--expected") == 2 for argv in tables)
+
+
+def test_step_52_refits_the_shipped_grounding_on_more_scenes_and_evaluates_it_as_the_shipped_one(every_call):
+    refits = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    more = next(argv for argv in refits if argv[4] == "runs/refit30k")
+    assert more[2:4] == ["models/trivla_cpu", "data/sim"]
+    assert [option(more, k) for k in ("--scenes", "--steps", "--lr")] == ["30000", "3000", "3e-4"]
+    shipped = refits.index(next(argv for argv in refits if argv[4] == "models/trivla_cpu"))
+    assert shipped < refits.index(more)  # it starts from step 46's model
+    runs = [argv for argv in every_call if argv[0] == "evaluate" and option(argv, "--policy") == "runs/refit30k"]
+    assert sorted(int(option(a, "--seed")) for a in runs
+                  if option(a, "--chains") is None and option(a, "--prelude") is None) == list(range(1000, 1018))
+    assert sorted(option(a, "--seed") for a in runs if option(a, "--chains") == "20") == ["1003", "1004", "1005", "1006"]
+    assert sorted((option(a, "--prelude"), option(a, "--seed")) for a in runs if option(a, "--prelude") is not None) == [
+        ("1", "1000"), ("1", "1001"), ("1", "1002"), ("2", "1000")]
+    compare = [argv for argv in every_call if argv[:2] == ["python", "results/follow_control/compare_seeds.py"]
+               and "refit30k=results/grounding_scenes/more_scenes/refit30k" in argv]
+    assert len(compare) == 1 and "shipped=results/grounding_scenes/refit" in compare[0]
