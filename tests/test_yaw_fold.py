@@ -24,7 +24,7 @@ def test_the_rebuilt_scenes_are_the_stored_episodes(script):
         assert sum(r["success"] for r in mine) == task["successes"]
     for r in rows:
         assert -45.0 <= r["block_deg"] < 45.0 and -45.0 <= r["off_deg"] < 45.0
-        assert abs(r["hand_deg"]) < 40.0  # the start posture's spread of the wrist
+        assert abs(r["hand_deg"]) < 40.0 and abs(r["turn_deg"]) <= 180.0  # the start posture's spread of the wrist
 
 
 def test_the_bins_hold_every_episode_once_and_the_table_shows_them(script):
@@ -34,4 +34,4 @@ def test_the_bins_hold_every_episode_once_and_the_table_shows_them(script):
                                                                 (38, 46, 2, 0)]
     assert script.binned(rows, "off_deg", script.FOLD_EDGES, task="stack_block")[0] == (0, 15, 0, 0)
     table = script.markdown(rows)
-    assert "| 0-15 | 1 / 2 | 1 / 2 |" in table and "| 60-181 | 0 / 2 |" in table
+    assert "| 0-15 | 1 / 2 | 1 / 2 |" in table and "| 60-180.1 | 0 / 2 |" in table

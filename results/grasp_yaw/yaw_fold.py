@@ -23,7 +23,7 @@ from trivla_drake.tasks.suite import get_task, sample_task_instance
 
 # Bin edges [deg] of the absolute angles; the last bin ends past 45 so that the fold itself is in it.
 FOLD_EDGES = (0, 15, 30, 38, 46)
-TURN_EDGES = (0, 15, 30, 45, 60, 181)  # a turn is never more than a half turn
+TURN_EDGES = (0, 15, 30, 45, 60, 180.1)  # turns are wrapped into [-180, 180]
 
 
 def episode_yaws(report: dict, layout: Layout | None = None) -> list[dict]:
@@ -40,13 +40,13 @@ def episode_yaws(report: dict, layout: Layout | None = None) -> list[dict]:
             spec, instance = sample_task_instance(get_task(name), np.random.default_rng(seed), layout)
             scene = scene_from_spec(spec, layout)
             color = instance.params[0]
-            joints = torch.tensor(np.asarray(spec.arm_q, dtype=np.float32))[None]
-            start = hand_yaw(tcp.pose(joints)[0].double().numpy())
+            with torch.no_grad():
+                start = hand_yaw(tcp.pose(torch.tensor(np.asarray(spec.arm_q)[None], dtype=torch.float64))[0].numpy())
             block = fold_quarter_turn(scene.block_yaw(color))
             rows.append({"task": name, "seed": seed, "success": seed not in failed,
                          "block_deg": math.degrees(block), "hand_deg": math.degrees(start),
                          "off_deg": math.degrees(fold_quarter_turn(block - start)),
-                         "turn_deg": math.degrees(grasp_yaw(scene, color) - start)})
+                         "turn_deg": math.degrees(math.remainder(grasp_yaw(scene, color) - start, 2 * math.pi))})
     return rows
 
 
@@ -70,7 +70,7 @@ def markdown(rows: list[dict]) -> str:
     for key, edges, title in (("block_deg", FOLD_EDGES, "the block's own yaw, folded"),
                               ("turn_deg", TURN_EDGES, "the oracle's turn to its grasp yaw")):
         lines += ["", f"| {title} [deg] | successes / episodes |", "| --- | --- |"]
-        lines += [f"| {low}-{high} | {s} / {n} |" for low, high, n, s in binned(rows, key, edges)]
+        lines += [f"| {low}-{high:g} | {s} / {n} |" for low, high, n, s in binned(rows, key, edges)]
     return "\n".join(lines)
 
 
