@@ -948,6 +948,9 @@ fi
 # 50. Optional (HOME_FIRST=1, after step 46; results/home_first/): does the hand's start limit the tasks after a
 #     prelude? The shipped model on every task after a one-task prelude (seeds 1000-1002), the hand first brought back
 #     to the start posture's pose before each task (`--home-first`); compared with step 46's refit_prelude1_seed*.json.
+#     Its files were made by the first version of --home-first (up to commit d85a985), which handed over while the
+#     arm was still catching up on the commanded path; today's --home-first waits for it (step 53), so this block
+#     now gives step 53's figures (`git checkout d85a985` reruns it as it was).
 if [[ "${HOME_FIRST:-0}" == 1 ]]; then
   mkdir -p results/home_first
   for seed in 1000 1001 1002; do
@@ -1002,4 +1005,34 @@ if [[ "${MORE_SCENES:-0}" == 1 ]]; then
   chain_positions "$MS/refit30k" "$MS/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$MS/compare.png" \
       shipped=results/grounding_scenes/refit refit30k="$MS/refit30k" > "$MS/compare.md"
+fi
+# 53. Optional (PRELUDE_RESET=1, after step 46; results/prelude_reset/, session 49; about 45 min): do the tasks after a
+#     prelude fail on the scene the prelude left or on the robot's state? Every task after a one-task prelude (seeds
+#     1000-1002, paired with step 46's refit_prelude1_seed*.json), restarted at time 0 in the scene the prelude left
+#     with the arm in its start posture (--arm start), restarted with the arm where the prelude left it (--arm
+#     prelude), and homed by the first version of --home-first without a restart, its steps not counted (--arm
+#     home); then today's --home-first (the arm settled at home before the policy acts) after one- and two-task
+#     preludes and on step 46's 80 chains; where its chains break.
+if [[ "${PRELUDE_RESET:-0}" == 1 ]]; then
+  PR=results/prelude_reset
+  mkdir -p "$PR"
+  for seed in 1000 1001 1002; do
+    "${PYTHON:-python}" "$PR/reset_after_prelude.py" models/trivla_cpu "$seed" "$PR/reset_prelude1_seed$seed.json"
+    "${PYTHON:-python}" "$PR/reset_after_prelude.py" models/trivla_cpu "$seed" "$PR/armkept_prelude1_seed$seed.json" \
+        --arm prelude
+    "${PYTHON:-python}" "$PR/reset_after_prelude.py" models/trivla_cpu "$seed" "$PR/homefree_prelude1_seed$seed.json" \
+        --arm home
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --home-first \
+        --no-progress --json > "$PR/settled_home_prelude1_seed$seed.json"
+  done
+  trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 2 --seed 1000 --workers 2 --home-first \
+      --no-progress --json > "$PR/settled_home_prelude2_seed1000.json"
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy models/trivla_cpu --episodes 0 --chains 20 --seed "$seed" --workers 2 --home-first \
+        --no-progress --json > "$PR/settled_home_chains20_seed$seed.json"
+  done
+  "${PYTHON:-python}" results/grounding_scenes/chain_positions.py "$PR"/settled_home_chains20_seed100{3,4,5,6}.json \
+      --expected "from the start=$(ls results/grounding_scenes/refit_seed10??.json | paste -sd,)" \
+      --expected "after one prelude=$(ls "$PR"/settled_home_prelude1_seed100?.json | paste -sd,)" > "$PR/chain_positions.md"
+  "${PYTHON:-python}" "$PR/compare_preludes.py" > "$PR/compare.md"
 fi

@@ -8,7 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trivla_drake.eval.home_first import ARRIVED_M, HomeFirst, home_tcp_pose, homing_actions
+from trivla_drake.eval.home_first import (
+    ARRIVED_M,
+    CHUNK_STEPS,
+    SETTLE_STEPS,
+    SETTLED_M,
+    SETTLED_SPEED,
+    HomeFirst,
+    home_tcp_pose,
+    homing_actions,
+)
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW, apply_action, exp_so3
 
 
@@ -19,10 +28,14 @@ def _away(home, dx=0.2, dy=-0.15, dz=-0.25, turn=(0.0, 0.0, 1.2)):
     return X
 
 
-def _observation(X, command=1.0, width=0.08):
+def _observation(X, command=1.0, width=0.08, measured=None, joint_speed=0.0, time=1.0):
+    """What the env observes: the commanded pose X, the measured one (X unless given), the fingers' width,
+    the arm's joint speeds (all seven at `joint_speed`) and the simulated time [s] (0: the episode's start)."""
     state = np.zeros(18)
     state[7] = state[8] = width / 2
-    return {"ee_target": X, "gripper_command": command, "state": state}
+    state[9:16] = joint_speed
+    return {"ee_target": X, "gripper_command": command, "state": state, "time": time,
+            "tcp_pose": X if measured is None else measured}
 
 
 def _integrate(X, rows):
@@ -105,17 +118,68 @@ def test_the_hand_opens_unless_it_holds_a_block_and_waits_at_home_for_the_finger
     assert at_home.policy.calls == 1
 
 
+def test_it_holds_the_commanded_home_until_the_measured_arm_is_there_and_still():
+    home = home_tcp_pose()
+    policy = HomeFirst(Holding())
+    policy.reset("lift the red block", 0)
+    lagging = _away(home, dx=0.08, dy=0.0, dz=0.0, turn=(0.0, 0.0, 0.0))
+    for measured, speed in ((lagging, 0.0), (home, 0.5)):  # commanded home, the arm behind or still moving
+        rows = policy.act(_observation(home, measured=measured, joint_speed=speed))
+        assert len(rows) == SETTLE_STEPS and np.all(rows[:, :6] == 0) and np.all(rows[:, 6] == 1.0)
+        assert policy.policy.calls == 0
+    near = home.copy()
+    near[0, 3] += 0.5 * SETTLED_M
+    policy.act(_observation(home, measured=near, joint_speed=0.5 * SETTLED_SPEED / np.sqrt(7)))
+    assert policy.policy.calls == 1
+    # The first version (kept to reproduce results/home_first/) handed over with the arm still on its way.
+    first = HomeFirst(Holding(), settle=False)
+    first.reset("lift the red block", 0)
+    first.act(_observation(home, measured=lagging, joint_speed=0.5, time=0.0))
+    assert first.policy.calls == 1
+    # A held block stays held while it waits.
+    holding = HomeFirst(Holding())
+    holding.reset("put the red block in the bowl", 0)
+    rows = holding.act(_observation(home, -1.0, 0.045, measured=lagging))
+    assert len(rows) == SETTLE_STEPS and np.all(rows[:, 6] == -1.0)
+
+
+def test_a_task_that_starts_the_episode_is_not_homed():
+    home = home_tcp_pose()
+    policy = HomeFirst(Holding())
+    policy.reset("lift the red block", 0)
+    policy.act(_observation(_away(home), time=0.0))  # a single task, or a chain's first: its start posture
+    assert policy.policy.calls == 1
+    policy.reset("put the red block in the bowl", 1)  # the chain's next task homes
+    rows = policy.act(_observation(_away(home), time=4.2))
+    assert policy.policy.calls == 1 and len(rows) == CHUNK_STEPS
+
+
+class FirstLook(Holding):
+    """Holding, and keeps the observation it is first called with (the state the policy takes over in)."""
+
+    def act(self, observation):
+        if not self.calls:
+            self.first = {key: np.array(observation[key]) for key in ("tcp_pose", "state")}
+        return super().act(observation)
+
+
 def test_in_the_simulator_a_later_task_starts_from_the_start_pose():
     from trivla_drake.eval.episode import run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
 
-    result = run_episode("turn_on_light", 123, HomeFirst(Holding()), keep_trajectory=True, prelude=1,
-                         prelude_policy=OraclePolicy(), max_steps=90)
+    inner = FirstLook()
+    result = run_episode("turn_on_light", 123, HomeFirst(inner), keep_trajectory=True, prelude=1,
+                         prelude_policy=OraclePolicy(), max_steps=110)
     assert len(result.prelude) == 1, result.reason
     tcp = np.asarray(result.trajectory.tcp_poses)
     home = home_tcp_pose()
     assert np.linalg.norm(tcp[0][:3] - home[:3, 3]) > 0.05  # the prelude left the hand elsewhere
     assert np.linalg.norm(tcp[-1][:3] - home[:3, 3]) < 0.015  # measured, after the homing and a hold
+    # When the policy takes over the measured arm is at home and all but still (not catching up on the
+    # commanded path, some 10 cm behind it: the first version's hand-over).
+    assert inner.calls > 0, "the homing used up the whole budget"
+    assert np.linalg.norm(inner.first["tcp_pose"][:3, 3] - home[:3, 3]) < SETTLED_M
+    assert np.linalg.norm(inner.first["state"][9:16]) <= SETTLED_SPEED
 
 
 def test_bad_settings_are_refused_by_name():

@@ -47,7 +47,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
-           "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1",
+           "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -486,7 +486,7 @@ def test_step_49_follows_the_shipped_model_with_step_42s_command_and_evaluates_i
 
 
 def test_step_50_runs_the_preludes_with_the_hand_brought_home_first(calls):
-    homed = [argv for argv in calls if argv[0] == "evaluate" and "--home-first" in argv]
+    homed = [argv for argv in calls if argv[0] == "evaluate" and "--home-first" in argv][:3]  # step 53 comes later
     assert [option(a, "--seed") for a in homed] == ["1000", "1001", "1002"]
     assert all(option(a, "--policy") == "models/trivla_cpu" and option(a, "--prelude") == "1" for a in homed)
 
@@ -506,7 +506,7 @@ def test_step_51_follows_the_shipped_model_on_more_prelude_data_with_step_49_s_c
 def test_the_chain_position_tables_read_each_model_s_four_chain_seeds(every_call):
     tables = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/chain_positions.py"]]
     prefixes = ["results/grounding_scenes/refit", "results/shipped_follow/shipfollow", "results/weak_preludes/weak",
-                "results/grounding_scenes/more_scenes/refit30k"]
+                "results/grounding_scenes/more_scenes/refit30k", "results/prelude_reset/settled_home"]
     assert [argv[2:6] for argv in tables] == [[f"{p}_chains20_seed{s}.json" for s in range(1003, 1007)] for p in prefixes]
     assert all(argv.count("--expected") == 2 for argv in tables)
 
@@ -527,3 +527,18 @@ def test_step_52_refits_the_shipped_grounding_on_more_scenes_and_evaluates_it_as
     compare = [argv for argv in every_call if argv[:2] == ["python", "results/follow_control/compare_seeds.py"]
                and "refit30k=results/grounding_scenes/more_scenes/refit30k" in argv]
     assert len(compare) == 1 and "shipped=results/grounding_scenes/refit" in compare[0]
+
+
+def test_step_53_restarts_the_tasks_after_a_prelude_three_ways_then_homes_the_preludes_and_chains(every_call):
+    resets = [argv for argv in every_call if argv[:2] == ["python", "results/prelude_reset/reset_after_prelude.py"]]
+    arms = sorted((option(a, "--arm", "start"), a[3]) for a in resets)
+    assert arms == sorted((arm, seed) for arm in ("start", "prelude", "home") for seed in ("1000", "1001", "1002"))
+    assert all(a[2] == "models/trivla_cpu" for a in resets)
+    homed = [argv for argv in every_call if argv[0] == "evaluate" and "--home-first" in argv][3:]
+    assert all(option(a, "--policy") == "models/trivla_cpu" for a in homed)
+    assert sorted((option(a, "--prelude"), option(a, "--seed")) for a in homed if option(a, "--prelude")) == [
+        ("1", "1000"), ("1", "1001"), ("1", "1002"), ("2", "1000")]
+    assert sorted(option(a, "--seed") for a in homed if option(a, "--chains") == "20") == ["1003", "1004", "1005", "1006"]
+    positions = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/chain_positions.py"]]
+    assert positions[-1][2:6] == [f"results/prelude_reset/settled_home_chains20_seed{s}.json" for s in range(1003, 1007)]
+    assert ["python", "results/prelude_reset/compare_preludes.py"] in every_call

@@ -214,8 +214,9 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                              "(unrecorded): the success of each task where a chain's later tasks start (default 0: "
                              "from the start posture; a prelude that fails is redrawn)")
     parser.add_argument("--home-first", action="store_true",
-                        help="learned policies: at the start of every task (each of a chain's too) the hand first "
-                             "goes back to the start posture's pose, scripted, and then the policy acts; those "
+                        help="learned policies: at the start of every task that does not start the episode (a "
+                             "chain's later tasks, a task after --prelude) the hand first goes back to the start "
+                             "posture's pose, scripted, and the policy acts once the arm has settled there; those "
                              "steps count against the task's")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")

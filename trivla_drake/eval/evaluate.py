@@ -64,8 +64,9 @@ class EvalConfig:
     # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
     # way to start is redrawn (it is no failure of the policy).
     prelude: int = 0
-    # Learned policies only: at the start of every task (each of a chain's too) the hand first goes back to
-    # the start posture's pose, scripted, then the policy acts (eval/home_first.py); its steps count.
+    # Learned policies only: at the start of every task that does not start the episode (a chain's later tasks,
+    # a task after a prelude) the hand first goes back to the start posture's pose, scripted, and the policy
+    # acts once the arm has settled there (eval/home_first.py); its steps count.
     home_first: bool = False
 
     def validate(self) -> None:

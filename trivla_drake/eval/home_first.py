@@ -5,7 +5,13 @@ In a chain every task but the first starts where the one before it left the hand
 moved block, turned by a rotation); the demonstrations mostly start from the start posture. Going home first
 makes a later task start the way a first one does, with only the scene changed. The homing is scripted (no
 learning): the hand rises straight up to the home height if it is below it, then moves and turns to the home
-pose along a straight line, each step within the action bounds. The hand opens, as it is at the start
+pose along a straight line, each step within the action bounds. The commanded pose gets there first: the
+diff-IK follows a commanded path at the action's top speed about 10 cm behind, so the arm would still be
+moving fast, far from home, when the policy takes over (an earlier version handed over then, and the
+tasks after a prelude did worse than without it, results/prelude_reset/). So the wrapper then holds the
+commanded pose until the measured tool-centre point is within `SETTLED_M` of home and the arm has all but
+stopped, as it is at the start of an episode. A task that starts the episode (simulated time 0: a single
+task, or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is at the start
 posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
 hand. Its steps count against the task's step budget like any others.
 """
@@ -21,6 +27,11 @@ from trivla_drake.tasks.scene import HOME_ARM_Q
 ARRIVED_M, ARRIVED_RAD = 0.005, 0.03
 # Steps of one homing chunk; the longest homing the wrapper allows (36 Hz: 3 s).
 CHUNK_STEPS, MAX_HOMING_STEPS = 12, 108
+# Steps of one chunk that holds the commanded pose while the arm catches up.
+SETTLE_STEPS = 3
+# The policy takes over once the measured tool-centre point is this near the home position [m] and the arm's
+# joint speeds (the state's entries 9 to 15) have this norm or less [rad/s].
+SETTLED_M, SETTLED_SPEED = 0.01, 0.05
 # Below the home height by more than this, the hand first rises straight up [m].
 RISE_FIRST_M = 0.02
 # A closed hand whose fingers stay further apart than this holds something [m] (a block: 0.045).
@@ -73,11 +84,11 @@ def _arrived(X: np.ndarray, home: np.ndarray) -> bool:
 
 class HomeFirst:
     """Wraps a Policy (reset / act): each reset starts a homing phase (at most `max_steps` control steps)
-    that ends when the commanded pose reaches the start posture's; then `policy` acts."""
+    that ends when the commanded pose has reached the start posture's and the measured arm has settled there; then `policy` acts."""
 
     privileged = False
 
-    def __init__(self, policy, *, max_steps: int = MAX_HOMING_STEPS):
+    def __init__(self, policy, *, max_steps: int = MAX_HOMING_STEPS, settle: bool = True):
         if getattr(policy, "privileged", False):
             raise ValueError("HomeFirst wraps learned policies; the oracle plans from wherever the hand is")
         if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
@@ -86,6 +97,10 @@ class HomeFirst:
         self.name = f"{policy.name}+home"
         self.uses_images = policy.uses_images
         self.max_steps = max_steps
+        # False: the first version, kept to reproduce results/home_first/ (it did worse than no homing at all): it
+        # homes at the episode's start too, and hands over once the commanded pose is home and the fingers are
+        # open, the arm still catching up.
+        self.settle = settle
         self._home = home_tcp_pose()
         self._homing_left = 0
 
@@ -94,12 +109,27 @@ class HomeFirst:
         self.policy.reset(instruction, seed)
 
     def act(self, observation: dict) -> np.ndarray:
+        if self.settle and self._homing_left == self.max_steps and observation["time"] == 0.0:
+            self._homing_left = 0  # the episode's start: the arm is in its start posture already
         if self._homing_left > 0:
             gripper, steps = homing_gripper(observation), min(CHUNK_STEPS, self._homing_left)
             rows = homing_actions(observation["ee_target"], self._home, gripper, steps)
-            if not len(rows) and gripper == GRIPPER_OPEN and _width(observation) < OPEN_WIDTH_M:
-                rows = np.tile(np.r_[np.zeros(6), GRIPPER_OPEN], (steps, 1))  # at home: wait for the fingers to open
+            if not len(rows) and self.settle and not self._settled(observation, gripper):
+                rows = np.tile(np.r_[np.zeros(6), gripper], (min(SETTLE_STEPS, steps), 1))  # wait for the arm
+            elif not len(rows) and not self.settle and not self._fingers_ready(observation, gripper):
+                rows = np.tile(np.r_[np.zeros(6), GRIPPER_OPEN], (steps, 1))  # the first version: the fingers only
             self._homing_left = self._homing_left - len(rows) if len(rows) else 0
             if len(rows):
                 return rows
         return self.policy.act(observation)
+
+    def _settled(self, observation: dict, gripper: float) -> bool:
+        """The measured arm is at home and all but still, and the fingers are open unless they hold a block."""
+        near = np.linalg.norm(observation["tcp_pose"][:3, 3] - self._home[:3, 3]) < SETTLED_M
+        still = np.linalg.norm(observation["state"][9:16]) <= SETTLED_SPEED
+        return near and still and self._fingers_ready(observation, gripper)
+
+    @staticmethod
+    def _fingers_ready(observation: dict, gripper: float) -> bool:
+        """Open, unless they are to stay closed on a block."""
+        return gripper != GRIPPER_OPEN or _width(observation) >= OPEN_WIDTH_M
