@@ -1035,4 +1035,5 @@ if [[ "${PRELUDE_RESET:-0}" == 1 ]]; then
       --expected "from the start=$(ls results/grounding_scenes/refit_seed10??.json | paste -sd,)" \
       --expected "after one prelude=$(ls "$PR"/settled_home_prelude1_seed100?.json | paste -sd,)" > "$PR/chain_positions.md"
   "${PYTHON:-python}" "$PR/compare_preludes.py" > "$PR/compare.md"
+  "${PYTHON:-python}" "$PR/handover_check.py" > "$PR/handover.md"
 fi

@@ -40,3 +40,22 @@ def test_a_restarted_episode_is_evaluates_episode_and_starts_in_the_scene_the_pr
     assert restarted["time"] == 0.0 and np.allclose(restarted["state"][9:], 0.0)
     for colour in again.blocks:
         np.testing.assert_allclose(env.scene().block_position(colour), scene.block_position(colour), atol=2e-3)
+
+
+def _handover():
+    spec = importlib.util.spec_from_file_location("handover_check", SCRIPT.parent / "handover_check.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_handover_check_measures_the_first_versions_hand_over_and_summarises_it():
+    script = _handover()
+    rows = script.handover_states(False, tasks=("turn_on_light",), episodes=1)
+    assert len(rows) == 1 and rows[0]["steps"] > 0 and rows[0]["prelude"]
+    # The first version hands over with the arm still moving (the state the fix waits out).
+    assert rows[0]["joint_speed"] > 0.2
+    line = script.summary_line("x", [{"to_home_cm": 1.0, "joint_speed": 0.5, "steps": 40},
+                                     {"to_home_cm": 3.0, "joint_speed": 1.5, "steps": 60},
+                                     {"to_home_cm": 9.0, "joint_speed": 0.7, "steps": 50}])
+    assert line == "| x | 3 | 3.0 (1.0–9.0) | 0.70 (0.50–1.50) | 50 (40–60) |"

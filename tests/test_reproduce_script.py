@@ -542,3 +542,4 @@ def test_step_53_restarts_the_tasks_after_a_prelude_three_ways_then_homes_the_pr
     positions = [argv for argv in every_call if argv[:2] == ["python", "results/grounding_scenes/chain_positions.py"]]
     assert positions[-1][2:6] == [f"results/prelude_reset/settled_home_chains20_seed{s}.json" for s in range(1003, 1007)]
     assert ["python", "results/prelude_reset/compare_preludes.py"] in every_call
+    assert ["python", "results/prelude_reset/handover_check.py"] in every_call

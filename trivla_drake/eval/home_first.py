@@ -1,18 +1,18 @@
-"""`HomeFirst`: a policy wrapper that, at the start of every (sub)task, first brings the commanded tool-centre
-point back to the start posture's pose and only then hands over to the wrapped policy.
+"""`HomeFirst`: a policy wrapper that, at the start of every task that does not start the episode, first brings
+the tool-centre point back to the start posture's pose and only then hands over to the wrapped policy.
 
 In a chain every task but the first starts where the one before it left the hand (by a drawer handle, above a
 moved block, turned by a rotation); the demonstrations mostly start from the start posture. Going home first
 makes a later task start the way a first one does, with only the scene changed. The homing is scripted (no
 learning): the hand rises straight up to the home height if it is below it, then moves and turns to the home
 pose along a straight line, each step within the action bounds. The commanded pose gets there first: the
-diff-IK follows a commanded path at the action's top speed about 10 cm behind, so the arm would still be
-moving fast, far from home, when the policy takes over (an earlier version handed over then, and the
+diff-IK follows a commanded path at the action's top speed up to some 13 cm behind, so the arm would still
+be moving fast (0.7-1.7 rad/s), often centimetres from home, when the policy takes over (an earlier version handed over then, and the
 tasks after a prelude did worse than without it, results/prelude_reset/). So the wrapper then holds the
 commanded pose until the measured tool-centre point is within `SETTLED_M` of home and the arm has all but
 stopped, as it is at the start of an episode. A task that starts the episode (simulated time 0: a single
-task, or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is at the start
-posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
+task, or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is
+at the start posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
 hand. Its steps count against the task's step budget like any others.
 """
 
