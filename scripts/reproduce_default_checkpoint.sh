@@ -945,19 +945,15 @@ if [[ "${SHIPPED_FOLLOW:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$SF/compare.png" \
       shipped=results/grounding_scenes/refit shipfollow="$SF/shipfollow" > "$SF/compare.md"
 fi
-# 50. Optional (HOME_FIRST=1, after step 46; results/home_first/): does the hand's start limit the tasks after a
-#     prelude? The shipped model on every task after a one-task prelude (seeds 1000-1002), the hand first brought back
-#     to the start posture's pose before each task (`--home-first`); compared with step 46's refit_prelude1_seed*.json.
-#     Its files were made by the first version of --home-first (up to commit d85a985), which handed over while the
-#     arm was still catching up on the commanded path; today's --home-first waits for it (step 53), so this block
-#     now gives step 53's figures (`git checkout d85a985` reruns it as it was).
-if [[ "${HOME_FIRST:-0}" == 1 ]]; then
-  mkdir -p results/home_first
-  for seed in 1000 1001 1002; do
-    trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed "$seed" --workers 2 --home-first \
-        --no-progress --json > "results/home_first/home_prelude1_seed$seed.json"
-  done
-fi
+# 50. (HOME_FIRST=1 in session 47; results/home_first/): does the hand's start limit the tasks after a prelude? The
+#     shipped model on every task after a one-task prelude (seeds 1000-1002), the hand first brought back to the start
+#     posture's pose before each task (`--home-first`); compared with step 46's refit_prelude1_seed*.json. Its files
+#     were made by the first version of --home-first, which handed over while the arm was still catching up on the
+#     commanded path; today's waits for it (step 53 measures both). To rerun it as it was: `git checkout d85a985`,
+#     then HOME_FIRST=1 runs
+#       trivla-drake evaluate --policy models/trivla_cpu --episodes 2 --prelude 1 --seed S --workers 2 --home-first \
+#           --no-progress --json > results/home_first/home_prelude1_seedS.json   (S = 1000, 1001, 1002)
+#     Nothing runs here any more: today's --home-first would overwrite those files with other figures.
 # 51. Optional (WEAK_PRELUDES=1, after steps 46 and 49; results/weak_preludes/): are the tasks after a prelude short of
 #     data? A copy of MORE_DATA with 20 more prelude demonstrations (1-4 prelude tasks) of each of the seven tasks that
 #     fail most after one (lift, stack, place in bowl, push left / right, rotate left / right: 140 episodes), and

@@ -1,7 +1,7 @@
-"""`--home-first` (eval/home_first.py): at the start of every task the hand first goes back to the start
-posture's pose, scripted, then the learned policy acts. The homing reaches the pose within the action bounds,
-rises before it moves sideways, opens the hand unless it holds a block, stops at its step budget, and runs again
-at every reset; bad settings are refused by name."""
+"""`--home-first` (eval/home_first.py): at the start of every task that does not start the episode the hand first
+goes back to the start posture's pose, scripted, and once the arm has settled there the learned policy acts. The
+homing reaches the pose within the action bounds, rises before it moves sideways, opens the hand unless it holds a
+block, stops at its step budget, and runs again at every reset; bad settings are refused by name."""
 
 from __future__ import annotations
 
@@ -136,6 +136,8 @@ def test_it_holds_the_commanded_home_until_the_measured_arm_is_there_and_still()
     first.reset("lift the red block", 0)
     first.act(_observation(home, measured=lagging, joint_speed=0.5, time=0.0))
     assert first.policy.calls == 1
+    first.reset("lift the red block", 0)  # and it homed at the episode's start too
+    assert len(first.act(_observation(_away(home), time=0.0))) == CHUNK_STEPS and first.policy.calls == 1
     # A held block stays held while it waits.
     holding = HomeFirst(Holding())
     holding.reset("put the red block in the bowl", 0)

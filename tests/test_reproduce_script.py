@@ -485,10 +485,11 @@ def test_step_49_follows_the_shipped_model_with_step_42s_command_and_evaluates_i
     assert len([a for a in runs if option(a, "--prelude") is not None]) == 4
 
 
-def test_step_50_runs_the_preludes_with_the_hand_brought_home_first(calls):
-    homed = [argv for argv in calls if argv[0] == "evaluate" and "--home-first" in argv][:3]  # step 53 comes later
-    assert [option(a, "--seed") for a in homed] == ["1000", "1001", "1002"]
-    assert all(option(a, "--policy") == "models/trivla_cpu" and option(a, "--prelude") == "1" for a in homed)
+def test_step_50_is_a_record_that_no_longer_overwrites_the_first_versions_files(calls):
+    text = SCRIPT.read_text()
+    block = text[text.index("# 50. "):text.index("# 51. ")]
+    assert "git checkout d85a985" in block
+    assert all(line.lstrip().startswith("#") for line in block.splitlines() if line.strip())
 
 
 def test_step_51_follows_the_shipped_model_on_more_prelude_data_with_step_49_s_command(calls):
@@ -534,7 +535,7 @@ def test_step_53_restarts_the_tasks_after_a_prelude_three_ways_then_homes_the_pr
     arms = sorted((option(a, "--arm", "start"), a[3]) for a in resets)
     assert arms == sorted((arm, seed) for arm in ("start", "prelude", "home") for seed in ("1000", "1001", "1002"))
     assert all(a[2] == "models/trivla_cpu" for a in resets)
-    homed = [argv for argv in every_call if argv[0] == "evaluate" and "--home-first" in argv][3:]
+    homed = [argv for argv in every_call if argv[0] == "evaluate" and "--home-first" in argv]
     assert all(option(a, "--policy") == "models/trivla_cpu" for a in homed)
     assert sorted((option(a, "--prelude"), option(a, "--seed")) for a in homed if option(a, "--prelude")) == [
         ("1", "1000"), ("1", "1001"), ("1", "1002"), ("2", "1000")]

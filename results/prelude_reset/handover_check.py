@@ -2,11 +2,12 @@
 
     python results/prelude_reset/handover_check.py > results/prelude_reset/handover.md
 
-For two episodes each of six tasks after a one-task prelude (evaluate's seeds from 1000, the oracle's prelude),
+For two episodes each of six tasks after a one-task prelude (the first try of `evaluate --prelude 1`'s episodes
+from seed 1000, the oracle's prelude; an episode whose prelude fails is left out, where evaluate would redraw it),
 the homing of the first version (`HomeFirst(settle=False)`: it hands over once the commanded pose is home) and of
 today's (`settle=True`: it also waits for the measured arm) is stepped in the simulator, and the state it hands over
 in is measured: the tool-centre point's distance from the home pose, the norm of the arm's joint speeds, and the
-steps the homing took (the most it may take: 108).
+steps the homing took (the most it may take: 108); a summary row per version, then every episode.
 """
 
 from __future__ import annotations
@@ -76,8 +77,13 @@ def summary_line(label: str, rows: list[dict]) -> str:
 def main() -> int:
     lines = ["| homing | episodes | tool-centre point to home [cm], median (range) | joint speed norm [rad/s] | "
              "homing steps |", "| --- | --- | --- | --- | --- |"]
-    for label, settle in (("first version (`settle=False`)", False), ("today's `--home-first` (`settle=True`)", True)):
-        lines.append(summary_line(label, handover_states(settle)))
+    versions = (("first version (`settle=False`)", False), ("today's `--home-first` (`settle=True`)", True))
+    rows = {label: handover_states(settle) for label, settle in versions}
+    lines += [summary_line(label, got) for label, got in rows.items()]
+    lines += ["", "| homing | task | prelude | to home [cm] | joint speed [rad/s] | steps |",
+              "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {label} | {r['task']} | {r['prelude']} | {r['to_home_cm']:.1f} | {r['joint_speed']:.2f} "
+              f"| {r['steps']} |" for label, got in rows.items() for r in got]
     print("\n".join(lines))
     return 0
 

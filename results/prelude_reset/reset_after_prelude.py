@@ -65,9 +65,31 @@ def home_scripted(env, obs):
     return obs, steps
 
 
+def restart_after_prelude(env, obs: dict, start_arm_q, arm: str) -> tuple[dict, int | None]:
+    """What follows the prelude: "start" and "prelude" restart the env at time 0 from the scene the prelude left,
+    the arm at `start_arm_q` (the episode's start posture) or where the prelude left it; "home" does not restart,
+    the first version's homing brings the hand home. Returns (observation, homing steps or None)."""
+    if arm == "home":
+        return home_scripted(env, obs)
+    if arm not in ("start", "prelude"):
+        raise ValueError(f"arm must be start, prelude or home, got {arm!r}")
+    scene = env.scene()
+    return env.reset(scene_spec_after(scene, start_arm_q if arm == "start" else scene.arm_q)), None
+
+
 def run_reset_episode(checkpoint: str, task_name: str, seed: int, index: int, arm: str = "start") -> dict:
-    """`evaluate --prelude 1`'s episode `index` of `task_name` from base seed `seed`, restarted after its prelude
-    with the arm in the episode's start posture (`arm` "start") or where the prelude left it ("prelude")."""
+    """`evaluate --prelude 1`'s episode `index` of `task_name` from base seed `seed`, after its prelude restarted
+    with the arm in the episode's start posture (`arm` "start") or where the prelude left it ("prelude"), or homed
+    by the first version of --home-first without a restart, its steps not counted ("home"). An exception (a
+    simulation failure) fails the episode with its reason, as in `run_episode`."""
+    try:
+        return _reset_episode(checkpoint, task_name, seed, index, arm)
+    except Exception as error:  # noqa: BLE001 - one episode's failure, the run goes on
+        return {"task": task_name, "seed": None, "prelude": [], "success": False,
+                "reason": f"{type(error).__name__}: {error}"}
+
+
+def _reset_episode(checkpoint: str, task_name: str, seed: int, index: int, arm: str) -> dict:
     from trivla_drake.eval.episode import _Recorder, _run_prelude, _run_subtask, derive_seed, shared_env
     from trivla_drake.eval.evaluate import PRELUDE_REDRAWS, _policy
     from trivla_drake.tasks.chains import prelude_task
@@ -95,11 +117,9 @@ def run_reset_episode(checkpoint: str, task_name: str, seed: int, index: int, ar
     target_offset = obs["ee_target"][:3, 3] - obs["tcp_pose"][:3, 3]
     row["target_offset_cm"] = [round(100 * float(v), 2) for v in target_offset]
     row["gripper_closed_after_prelude"] = bool(obs["gripper_command"] <= 0)
-    scene = env.scene()
-    if arm == "home":  # no reset: the first version's scripted homing, its steps outside the task's budget
-        obs, row["homing_steps"] = home_scripted(env, obs)
-    else:
-        obs = env.reset(scene_spec_after(scene, spec.arm_q if arm == "start" else scene.arm_q))
+    obs, homing_steps = restart_after_prelude(env, obs, spec.arm_q, arm)
+    if homing_steps is not None:  # the first version's homing, its steps outside the task's budget
+        row["homing_steps"] = homing_steps
     if tuple(instance.params) not in [tuple(p) for p in task.candidates(env.scene())]:
         return {**row, "reason": "the reset scene no longer lets the task start", "startable": False}
     result, _ = _run_subtask(env, obs, policy, instance, policy_seed, task.max_steps,
@@ -135,7 +155,7 @@ def main(argv=None) -> int:
     report = {"policy": args.checkpoint, "seed": args.seed, "episodes_per_task": args.episodes, "arm": args.arm,
               "average_success": sum(r["success"] for r in rows) / len(rows), "tasks": tasks, "episodes": rows}
     Path(args.out).write_text(json.dumps(report, indent=1))
-    print(f"{sum(r['success'] for r in rows)} of {len(rows)} after a prelude, the scene reset to time 0", file=sys.stderr)
+    print(f"{sum(r['success'] for r in rows)} of {len(rows)} after a prelude (--arm {args.arm})", file=sys.stderr)
     return 0
 
 

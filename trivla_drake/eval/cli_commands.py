@@ -216,8 +216,8 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--home-first", action="store_true",
                         help="learned policies: at the start of every task that does not start the episode (a "
                              "chain's later tasks, a task after --prelude) the hand first goes back to the start "
-                             "posture's pose, scripted, and the policy acts once the arm has settled there; those "
-                             "steps count against the task's")
+                             "posture's pose, scripted, and the policy acts once the arm has settled there (or after "
+                             "108 steps); those steps count against the task's")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

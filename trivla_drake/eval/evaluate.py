@@ -66,7 +66,7 @@ class EvalConfig:
     prelude: int = 0
     # Learned policies only: at the start of every task that does not start the episode (a chain's later tasks,
     # a task after a prelude) the hand first goes back to the start posture's pose, scripted, and the policy
-    # acts once the arm has settled there (eval/home_first.py); its steps count.
+    # acts once the arm has settled there or 108 steps are spent (eval/home_first.py); its steps count.
     home_first: bool = False
 
     def validate(self) -> None:

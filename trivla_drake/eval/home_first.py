@@ -2,17 +2,18 @@
 the tool-centre point back to the start posture's pose and only then hands over to the wrapped policy.
 
 In a chain every task but the first starts where the one before it left the hand (by a drawer handle, above a
-moved block, turned by a rotation); the demonstrations mostly start from the start posture. Going home first
-makes a later task start the way a first one does, with only the scene changed. The homing is scripted (no
-learning): the hand rises straight up to the home height if it is below it, then moves and turns to the home
-pose along a straight line, each step within the action bounds. The commanded pose gets there first: the
-diff-IK follows a commanded path at the action's top speed up to some 13 cm behind, so the arm would still
-be moving fast (0.7-1.7 rad/s), often centimetres from home, when the policy takes over (an earlier version handed over then, and the
-tasks after a prelude did worse than without it, results/prelude_reset/). So the wrapper then holds the
-commanded pose until the measured tool-centre point is within `SETTLED_M` of home and the arm has all but
-stopped, as it is at the start of an episode. A task that starts the episode (simulated time 0: a single
-task, or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is
-at the start posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
+moved block, turned by a rotation); the clean demonstrations start from the start posture. Going home first makes
+a later task start the way a first one does, with only the scene changed. The homing is scripted (no learning):
+the hand rises straight up to the home height if it is below it, then moves and turns to the home pose along a
+straight line, each step within the action bounds. The commanded pose gets there first: the diff-IK follows a
+commanded path at the action's top speed up to some 13 cm behind, so the arm would still be moving fast (0.7-1.7
+rad/s), often centimetres from home, when the policy takes over (an earlier version handed over then, and the
+tasks after a prelude did worse than without it, results/prelude_reset/). So the wrapper then holds the commanded
+pose until the measured tool-centre point is within `SETTLED_M` of home and the arm has all but stopped, as it is
+at the start of an episode, or until its `max_steps` are spent (then the arm may still be turning slowly: 3 of 12
+homings after a prelude, results/prelude_reset/). A task that starts the episode (simulated time 0: a single task,
+or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is at the start
+posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
 hand. Its steps count against the task's step budget like any others.
 """
 
@@ -83,8 +84,9 @@ def _arrived(X: np.ndarray, home: np.ndarray) -> bool:
 
 
 class HomeFirst:
-    """Wraps a Policy (reset / act): each reset starts a homing phase (at most `max_steps` control steps)
-    that ends when the commanded pose has reached the start posture's and the measured arm has settled there; then `policy` acts."""
+    """Wraps a Policy (reset / act): each reset starts a homing phase (at most `max_steps` control steps; none
+    for a task at simulated time 0) that ends when the commanded pose has reached the start posture's and the
+    measured arm has settled there; then `policy` acts."""
 
     privileged = False
 
@@ -97,9 +99,10 @@ class HomeFirst:
         self.name = f"{policy.name}+home"
         self.uses_images = policy.uses_images
         self.max_steps = max_steps
-        # False: the first version, kept to reproduce results/home_first/ (it did worse than no homing at all): it
-        # homes at the episode's start too, and hands over once the commanded pose is home and the fingers are
-        # open, the arm still catching up.
+        # False: the first version (results/home_first/ was made with it, up to commit d85a985; it did worse
+        # than no homing at all), kept for the diagnostics of results/prelude_reset/: it homes at the episode's
+        # start too, and hands over once the commanded pose is home and the fingers are open, the arm still
+        # catching up.
         self.settle = settle
         self._home = home_tcp_pose()
         self._homing_left = 0
