@@ -4,7 +4,6 @@ the stored reports' (their Avg. Len agrees only if every chain's seed is derived
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -13,15 +12,12 @@ import pytest
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("compare_preludes", RESULTS / "prelude_reset" / "compare_preludes.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture
+def script(results_script):
+    return results_script("prelude_reset/compare_preludes.py")
 
 
-def test_the_paired_outcomes_add_up_to_each_stored_reports_successes():
-    script = _script()
+def test_the_paired_outcomes_add_up_to_each_stored_reports_successes(script):
     for _, prefix in script.PRELUDE_ROWS:
         outcomes = script.episode_outcomes(RESULTS, prefix)
         assert len(outcomes) == 72
@@ -30,8 +26,7 @@ def test_the_paired_outcomes_add_up_to_each_stored_reports_successes():
         assert sum(outcomes.values()) == stored
 
 
-def test_the_chain_lengths_give_the_stored_avg_len_and_the_table_says_so():
-    script = _script()
+def test_the_chain_lengths_give_the_stored_avg_len_and_the_table_says_so(script):
     for _, prefix in script.CHAIN_ROWS:
         lengths = script.chain_lengths(RESULTS, prefix)
         stored = [json.loads((RESULTS / f"{prefix}_seed{s}.json").read_text())["chain_avg_len"] for s in script.CHAIN_SEEDS]
@@ -39,11 +34,3 @@ def test_the_chain_lengths_give_the_stored_avg_len_and_the_table_says_so():
     text = script.tables(RESULTS)
     assert "| with `--home-first` | 1.86 ± 0.19 | 56 / 43 / 23 / 15 / 12 |" in text
     assert "**46**" in text and "**60** | 20 / 6 (p 0.009)" in text
-
-
-def test_the_sign_test():
-    script = _script()
-    assert script.sign_test(0, 0) == 1.0
-    assert script.sign_test(3, 3) == 1.0
-    assert script.sign_test(5, 0) == pytest.approx(2 / 32)
-    assert script.sign_test(20, 6) == pytest.approx(script.sign_test(6, 20)) == pytest.approx(0.00936, abs=1e-4)

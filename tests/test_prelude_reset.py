@@ -5,27 +5,20 @@ posture or where the prelude left it, still, and the hand open."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "results" / "prelude_reset" / "reset_after_prelude.py"
+
+@pytest.fixture
+def script(results_script):
+    return results_script("prelude_reset/reset_after_prelude.py")
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("reset_after_prelude", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_a_restarted_episode_is_evaluates_episode():
+def test_a_restarted_episode_is_evaluates_episode(script):
     from trivla_drake.eval.episode import derive_seed, run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
 
-    row = _script().run_reset_episode("oracle", "turn_on_light", 1000, 0, "start")
+    row = script.run_reset_episode("oracle", "turn_on_light", 1000, 0, "start")
     stored = run_episode("turn_on_light", derive_seed(1000, "turn_on_light", 0), OraclePolicy(), prelude=1,
                          prelude_policy=OraclePolicy())
     assert (row["seed"], tuple(row["prelude"]), row["instruction"]) == (stored.seed, stored.prelude, stored.instruction)
@@ -48,10 +41,9 @@ def _after_a_prelude(env, task_name="push_block_left", seed=1000):
     return obs, spec
 
 
-def test_the_restart_keeps_the_scene_the_prelude_left_and_puts_the_arm_where_asked():
+def test_the_restart_keeps_the_scene_the_prelude_left_and_puts_the_arm_where_asked(script):
     from trivla_drake.eval.episode import shared_env
 
-    script = _script()
     env = shared_env(224)
     for arm in ("start", "prelude"):
         obs, spec = _after_a_prelude(env)
@@ -70,15 +62,8 @@ def test_the_restart_keeps_the_scene_the_prelude_left_and_puts_the_arm_where_ask
         script.restart_after_prelude(env, obs, spec.arm_q, "elsewhere")
 
 
-def _handover():
-    spec = importlib.util.spec_from_file_location("handover_check", SCRIPT.parent / "handover_check.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_the_handover_check_measures_the_first_versions_hand_over_and_summarises_it():
-    script = _handover()
+def test_the_handover_check_measures_the_first_versions_hand_over_and_summarises_it(results_script):
+    script = results_script("prelude_reset/handover_check.py")
     rows = script.handover_states(False, tasks=("turn_on_light",), episodes=1)
     assert len(rows) == 1 and rows[0]["steps"] > 0 and rows[0]["prelude"]
     # The first version hands over with the arm still moving (the state the fix waits out).

@@ -4,7 +4,8 @@
 
 Every task after a one-task prelude (seeds 1000-1002, two episodes per task: the same 72 scenes, preludes,
 instructions and policy seeds in each row), the shipped model run six ways, with the same tasks from the start
-posture below them; each row's episodes won and lost against the first row's, with a two-sided sign test; then
+posture below them; each row's episodes won and lost against the first row's, with the exact McNemar test
+(`../follow_control/compare_seeds.py`); then
 the 80 chains (seeds 1003-1006) without and with `--home-first`, paired by chain.
 """
 
@@ -12,8 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+import sys
 from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "follow_control"))
+from compare_seeds import mcnemar_p, stderr  # noqa: E402 - a sibling results script, run as a file
 
 TASKS = ("lift_block", "place_in_bowl", "stack_block", "unstack_block", "push_block_left", "push_block_right",
          "rotate_block_left", "rotate_block_right", "open_drawer", "close_drawer", "turn_on_light", "turn_off_light")
@@ -62,15 +68,6 @@ def per_task(root: Path, prefix: str) -> list[int]:
     return [sum(_load(root, prefix, seed)["tasks"][task]["successes"] for seed in SEEDS) for task in TASKS]
 
 
-def sign_test(won: int, lost: int) -> float:
-    """Two-sided sign test's p for `won` against `lost` discordant pairs."""
-    n = won + lost
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, k) for k in range(min(won, lost) + 1)) / 2**n
-    return min(1.0, 2 * tail)
-
-
 def chain_lengths(root: Path, prefix: str) -> list[int]:
     """Tasks completed in each of the 80 chains, in seed then chain order (a chain with no failure did all 5)."""
     from trivla_drake.eval.episode import derive_seed
@@ -83,15 +80,9 @@ def chain_lengths(root: Path, prefix: str) -> list[int]:
     return lengths
 
 
-def _mean_stderr(values: list[float]) -> tuple[float, float]:
-    n = len(values)
-    mean = sum(values) / n
-    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1) / n)
-
-
 def tables(root: Path) -> str:
     lines = ["| run (every task after a one-task prelude, 72 episodes) | " + " | ".join(SHORT)
-             + " | all | won / lost against the first row (sign test p) |",
+             + " | all | won / lost against the first row (McNemar p) |",
              "| --- |" + " --- |" * (len(SHORT) + 2)]
     first = episode_outcomes(root, PRELUDE_ROWS[0][1])
     for label, prefix in PRELUDE_ROWS:
@@ -101,23 +92,22 @@ def tables(root: Path) -> str:
             mine = episode_outcomes(root, prefix)
             won = sum(mine[k] and not first[k] for k in first)
             lost = sum(first[k] and not mine[k] for k in first)
-            paired = f"{won} / {lost} (p {sign_test(won, lost):.3f})"
+            paired = f"{won} / {lost} (p {mcnemar_p(won, lost):.3f})"
         lines.append(f"| {label} | " + " | ".join(map(str, counts)) + f" | **{sum(counts)}** | {paired} |")
     counts = per_task(root, FROM_START[1])
     lines.append(f"| {FROM_START[0]} | " + " | ".join(map(str, counts)) + f" | **{sum(counts)}** | |")
     lines += ["", "| 80 chains (seeds 1003-1006) | Avg. Len ± stderr | chains reaching task 1 / 2 / 3 / 4 / 5 | "
               "paired by chain against the first row |", "| --- | --- | --- | --- |"]
-    base = chain_lengths(root, CHAIN_ROWS[0][1])
+    base = np.array(chain_lengths(root, CHAIN_ROWS[0][1]))
     for label, prefix in CHAIN_ROWS:
-        lengths = chain_lengths(root, prefix)
-        mean, stderr = _mean_stderr(lengths)
+        lengths = np.array(chain_lengths(root, prefix))
         reach = " / ".join(str(sum(n >= k for n in lengths)) for k in range(1, 6))
         paired = ""
         if prefix != CHAIN_ROWS[0][1]:
-            d_mean, d_stderr = _mean_stderr([a - b for a, b in zip(lengths, base)])
-            won, lost = sum(a > b for a, b in zip(lengths, base)), sum(a < b for a, b in zip(lengths, base))
-            paired = f"{d_mean:+.2f} ± {d_stderr:.2f} ({won} longer, {lost} shorter)"
-        lines.append(f"| {label} | {mean:.2f} ± {stderr:.2f} | {reach} | {paired} |")
+            difference = lengths - base
+            paired = (f"{difference.mean():+.2f} ± {stderr(difference):.2f} ({int((difference > 0).sum())} longer, "
+                      f"{int((difference < 0).sum())} shorter)")
+        lines.append(f"| {label} | {lengths.mean():.2f} ± {stderr(lengths):.2f} | {reach} | {paired} |")
     return "\n".join(lines) + "\n"
 
 

@@ -4,7 +4,7 @@
 
 For two episodes each of six tasks after a one-task prelude (the first try of `evaluate --prelude 1`'s episodes
 from seed 1000, the oracle's prelude; an episode whose prelude fails is left out, where evaluate would redraw it),
-the homing of the first version (`HomeFirst(settle=False)`: it hands over once the commanded pose is home) and of
+the homing of the first version (`run_homing(settle=False)`: it hands over once the commanded pose is home) and of
 today's (`settle=True`: it also waits for the measured arm) is stepped in the simulator, and the state it hands over
 in is measured: the tool-centre point's distance from the home pose, the norm of the arm's joint speeds, and the
 steps the homing took (the most it may take: 108); a summary row per version, then every episode.
@@ -19,23 +19,11 @@ import numpy as np
 TASKS = ("lift_block", "push_block_left", "rotate_block_left", "open_drawer", "stack_block", "turn_on_light")
 
 
-class _HandOver:
-    """Stands in for the policy inside HomeFirst: its act() returns None, the sign that the homing is over."""
-
-    name, uses_images, privileged = "hand-over", False, False
-
-    def reset(self, instruction, seed):
-        pass
-
-    def act(self, observation):
-        return None
-
-
 def handover_states(settle: bool, tasks=TASKS, episodes: int = 2, seed: int = 1000) -> list[dict]:
     """Per episode: the task, the prelude, the distance from home [cm], the joint speed norm [rad/s], the steps."""
     from trivla_drake.eval.episode import _run_prelude, derive_seed, shared_env
     from trivla_drake.eval.evaluate import _policy
-    from trivla_drake.eval.home_first import HomeFirst, home_tcp_pose
+    from trivla_drake.eval.home_first import home_tcp_pose, run_homing
     from trivla_drake.tasks.chains import prelude_task
     from trivla_drake.tasks.suite import get_task, sample_task_instance
 
@@ -52,12 +40,7 @@ def handover_states(settle: bool, tasks=TASKS, episodes: int = 2, seed: int = 10
                                              prelude_task)
             if why:
                 continue
-            homing, steps = HomeFirst(_HandOver(), settle=settle), 0
-            homing.reset("", 0)
-            while (actions := homing.act(obs)) is not None:
-                for action in actions:
-                    obs = env.step(np.asarray(action, dtype=float), images=False)
-                    steps += 1
+            obs, steps = run_homing(env, obs, settle=settle, images=False)
             rows.append({"task": task_name, "prelude": done[0],
                          "to_home_cm": 100 * float(np.linalg.norm(obs["tcp_pose"][:3, 3] - home[:3, 3])),
                          "joint_speed": float(np.linalg.norm(obs["state"][9:16])), "steps": steps})

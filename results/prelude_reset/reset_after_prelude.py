@@ -7,7 +7,7 @@ left: every block where it lies (upright, at its yaw about z), the drawer's open
 and the arm back in the episode's start posture with the hand open (`--arm start`). The policy then gets the
 task as it would from the start posture, with no scripted motion and no step of the task's budget spent.
 `--arm prelude` restarts it the same way with the arm where the prelude left it (the hand opened);
-`--arm home` does not restart: the first version of `evaluate --home-first`'s homing (HomeFirst(settle=False))
+`--arm home` does not restart: the first version of `evaluate --home-first`'s homing (`run_homing(settle=False)`)
 brings the hand home, its steps outside the task's budget.
 
     python results/prelude_reset/reset_after_prelude.py CHECKPOINT SEED OUT.json [--arm start|prelude|home]
@@ -39,38 +39,14 @@ def scene_spec_after(scene, arm_q):
                      arm_q=tuple(float(q) for q in arm_q))
 
 
-class _HandOver:
-    """Stands in for the policy inside HomeFirst: its act() says that the homing is over."""
-
-    name, uses_images, privileged = "hand-over", False, False
-
-    def reset(self, instruction, seed):
-        pass
-
-    def act(self, observation):
-        return None
-
-
-def home_scripted(env, obs):
-    """The first version of `evaluate --home-first`'s homing (`HomeFirst(settle=False)`: it hands over once the
-    commanded pose is home, the arm still on its way) from the env's current state, stepped here: (obs, steps)."""
-    from trivla_drake.eval.home_first import HomeFirst
-
-    homing, steps = HomeFirst(_HandOver(), settle=False), 0
-    homing.reset("", 0)
-    while (rows := homing.act(obs)) is not None:
-        for action in rows:
-            obs = env.step(np.asarray(action, dtype=float))
-            steps += 1
-    return obs, steps
-
-
 def restart_after_prelude(env, obs: dict, start_arm_q, arm: str) -> tuple[dict, int | None]:
     """What follows the prelude: "start" and "prelude" restart the env at time 0 from the scene the prelude left,
     the arm at `start_arm_q` (the episode's start posture) or where the prelude left it; "home" does not restart,
     the first version's homing brings the hand home. Returns (observation, homing steps or None)."""
     if arm == "home":
-        return home_scripted(env, obs)
+        from trivla_drake.eval.home_first import run_homing
+
+        return run_homing(env, obs, settle=False)
     if arm not in ("start", "prelude"):
         raise ValueError(f"arm must be start, prelude or home, got {arm!r}")
     scene = env.scene()

@@ -83,21 +83,14 @@ def _arrived(X: np.ndarray, home: np.ndarray) -> bool:
             and np.linalg.norm(log_so3(home[:3, :3] @ X[:3, :3].T)) < ARRIVED_RAD)
 
 
-class HomeFirst:
-    """Wraps a Policy (reset / act): each reset starts a homing phase (at most `max_steps` control steps; none
-    for a task at simulated time 0) that ends when the commanded pose has reached the start posture's and the
-    measured arm has settled there; then `policy` acts."""
+class Homing:
+    """The scripted homing itself, one task's worth at a time: `start()` it, then `rows(observation)` gives the
+    next actions (k, 7) until it is over (None): the commanded pose home and the measured arm settled there (with
+    `settle`), or `max_steps` spent. A task at simulated time 0 is not homed (with `settle`)."""
 
-    privileged = False
-
-    def __init__(self, policy, *, max_steps: int = MAX_HOMING_STEPS, settle: bool = True):
-        if getattr(policy, "privileged", False):
-            raise ValueError("HomeFirst wraps learned policies; the oracle plans from wherever the hand is")
+    def __init__(self, *, max_steps: int = MAX_HOMING_STEPS, settle: bool = True):
         if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
             raise ValueError(f"max_steps must be an integer >= 1 (control steps), got {max_steps!r}")
-        self.policy = policy
-        self.name = f"{policy.name}+home"
-        self.uses_images = policy.uses_images
         self.max_steps = max_steps
         # False: the first version (results/home_first/ was made with it, up to commit d85a985; it did worse
         # than no homing at all), kept for the diagnostics of results/prelude_reset/: it homes at the episode's
@@ -105,34 +98,72 @@ class HomeFirst:
         # catching up.
         self.settle = settle
         self._home = home_tcp_pose()
-        self._homing_left = 0
+        self._left = 0
 
-    def reset(self, instruction: str, seed: int) -> None:
-        self._homing_left = self.max_steps
-        self.policy.reset(instruction, seed)
+    def start(self) -> None:
+        self._left = self.max_steps
 
-    def act(self, observation: dict) -> np.ndarray:
-        if self.settle and self._homing_left == self.max_steps and observation["time"] == 0.0:
-            self._homing_left = 0  # the episode's start: the arm is in its start posture already
-        if self._homing_left > 0:
-            gripper, steps = homing_gripper(observation), min(CHUNK_STEPS, self._homing_left)
-            rows = homing_actions(observation["ee_target"], self._home, gripper, steps)
-            if not len(rows) and self.settle and not self._settled(observation, gripper):
-                rows = np.tile(np.r_[np.zeros(6), gripper], (min(SETTLE_STEPS, steps), 1))  # wait for the arm
-            elif not len(rows) and not self.settle and not self._fingers_ready(observation, gripper):
-                rows = np.tile(np.r_[np.zeros(6), GRIPPER_OPEN], (steps, 1))  # the first version: the fingers only
-            self._homing_left = self._homing_left - len(rows) if len(rows) else 0
-            if len(rows):
-                return rows
-        return self.policy.act(observation)
+    def rows(self, observation: dict) -> np.ndarray | None:
+        if self.settle and self._left == self.max_steps and observation["time"] == 0.0:
+            self._left = 0  # the episode's start: the arm is in its start posture already
+        if self._left <= 0:
+            return None
+        gripper, steps = homing_gripper(observation), min(CHUNK_STEPS, self._left)
+        rows = homing_actions(observation["ee_target"], self._home, gripper, steps)
+        if not len(rows) and self.settle and not self._settled(observation, gripper):
+            rows = np.tile(np.r_[np.zeros(6), gripper], (min(SETTLE_STEPS, steps), 1))  # wait for the arm
+        elif not len(rows) and not self.settle and not _fingers_ready(observation, gripper):
+            rows = np.tile(np.r_[np.zeros(6), GRIPPER_OPEN], (steps, 1))  # the first version: the fingers only
+        self._left = self._left - len(rows) if len(rows) else 0
+        return rows if len(rows) else None
 
     def _settled(self, observation: dict, gripper: float) -> bool:
         """The measured arm is at home and all but still, and the fingers are open unless they hold a block."""
         near = np.linalg.norm(observation["tcp_pose"][:3, 3] - self._home[:3, 3]) < SETTLED_M
         still = np.linalg.norm(observation["state"][9:16]) <= SETTLED_SPEED
-        return near and still and self._fingers_ready(observation, gripper)
+        return near and still and _fingers_ready(observation, gripper)
 
-    @staticmethod
-    def _fingers_ready(observation: dict, gripper: float) -> bool:
-        """Open, unless they are to stay closed on a block."""
-        return gripper != GRIPPER_OPEN or _width(observation) >= OPEN_WIDTH_M
+
+def _fingers_ready(observation: dict, gripper: float) -> bool:
+    """Open, unless they are to stay closed on a block."""
+    return gripper != GRIPPER_OPEN or _width(observation) >= OPEN_WIDTH_M
+
+
+def run_homing(env, obs: dict, *, settle: bool = True, images: bool = True) -> tuple[dict, int]:
+    """Steps a TabletopEnv through one homing from its current state (`obs`, its last observation), outside any
+    task: (the observation it hands over in, the steps taken). For diagnostics (results/prelude_reset/)."""
+    homing, steps = Homing(settle=settle), 0
+    homing.start()
+    while (rows := homing.rows(obs)) is not None:
+        for action in rows:
+            obs = env.step(np.asarray(action, dtype=float), images=images)
+            steps += 1
+    return obs, steps
+
+
+class HomeFirst:
+    """Wraps a Policy (reset / act): each reset starts a homing phase (`Homing`: at most `max_steps` control
+    steps; none for a task at simulated time 0) that ends when the commanded pose has reached the start
+    posture's and the measured arm has settled there; then `policy` acts."""
+
+    privileged = False
+
+    def __init__(self, policy, *, max_steps: int = MAX_HOMING_STEPS, settle: bool = True):
+        if getattr(policy, "privileged", False):
+            raise ValueError("HomeFirst wraps learned policies; the oracle plans from wherever the hand is")
+        self._homing = Homing(max_steps=max_steps, settle=settle)
+        self.policy = policy
+        self.name = f"{policy.name}+home"
+        self.uses_images = policy.uses_images
+
+    @property
+    def max_steps(self) -> int:
+        return self._homing.max_steps
+
+    def reset(self, instruction: str, seed: int) -> None:
+        self._homing.start()
+        self.policy.reset(instruction, seed)
+
+    def act(self, observation: dict) -> np.ndarray:
+        rows = self._homing.rows(observation)
+        return self.policy.act(observation) if rows is None else rows
