@@ -1033,3 +1033,28 @@ if [[ "${PRELUDE_RESET:-0}" == 1 ]]; then
   "${PYTHON:-python}" "$PR/compare_preludes.py" > "$PR/compare.md"
   "${PYTHON:-python}" "$PR/handover_check.py" > "$PR/handover.md"
 fi
+# 54. Optional (CHAIN_LIFTS=1, after step 53; results/chain_lifts/, session 50; about 100 min): why do the grasp tasks
+#     fail in chains? Every lift, stack, place in bowl and unstack of step 53's 80 chains, rerun up to that task with
+#     --home-first and traced (where the hand closes against the block, whether it held it, how the block stood),
+#     with 108 more steps than the task's budget; and the single episodes of seeds 1000-1017 (lift) or 1000-1011;
+#     then lift, stack and place with every block to pick up on top of another (evaluate --stacked-picks).
+if [[ "${CHAIN_LIFTS:-0}" == 1 ]]; then
+  CL=results/chain_lifts
+  mkdir -p "$CL"
+  "${PYTHON:-python}" "$CL/chain_lifts.py" trivla "$CL/lifts.json" --task lift_block --single-seeds 1000-1017
+  "${PYTHON:-python}" "$CL/chain_lifts.py" trivla "$CL/stack.json" --task stack_block --single-seeds 1000-1011
+  "${PYTHON:-python}" "$CL/chain_lifts.py" trivla "$CL/place.json" --task place_in_bowl --single-seeds 1000-1011
+  "${PYTHON:-python}" "$CL/chain_lifts.py" trivla "$CL/unstack.json" --task unstack_block --single-seeds 1000-1011
+  for name in lifts stack place unstack; do
+    "${PYTHON:-python}" "$CL/summarise.py" "$CL/$name.json" > "$CL/$name.md"
+  done
+  mkdir -p "$CL/stacked_picks"
+  for seed in 1000 1001 1002 1003 1004 1005; do  # the same tasks, every block to pick up on top of another
+    for policy in oracle shipped; do
+      spec=$([[ $policy == oracle ]] && echo oracle || echo models/trivla_cpu)
+      trivla-drake evaluate --policy "$spec" --tasks lift_block,stack_block,place_in_bowl --episodes 2 --seed "$seed" \
+          --stacked-picks --workers 2 --no-progress --json > "$CL/stacked_picks/${policy}_seed$seed.json"
+    done
+  done
+  "${PYTHON:-python}" "$CL/stacked_compare.py" > "$CL/stacked_picks/compare.md"
+fi

@@ -47,7 +47,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CHUNKS": "1", "EMPHASIS": "1", "TAKEOVER": "1", "SUBGOALS": "1", "DIAGNOSE": "1", "CARRY": "1", "PHASE": "1", "PHASE_ALL": "1",
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
-           "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1",
+           "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -544,3 +544,19 @@ def test_step_53_restarts_the_tasks_after_a_prelude_three_ways_then_homes_the_pr
     assert positions[-1][2:6] == [f"results/prelude_reset/settled_home_chains20_seed{s}.json" for s in range(1003, 1007)]
     assert ["python", "results/prelude_reset/compare_preludes.py"] in every_call
     assert ["python", "results/prelude_reset/handover_check.py"] in every_call
+
+
+def test_step_54_traces_each_grasp_task_of_the_chains_and_summarises_it(every_call):
+    traces = [argv for argv in every_call if argv[:2] == ["python", "results/chain_lifts/chain_lifts.py"]]
+    assert sorted((option(a, "--task"), option(a, "--single-seeds"), a[3]) for a in traces) == [
+        ("lift_block", "1000-1017", "results/chain_lifts/lifts.json"),
+        ("place_in_bowl", "1000-1011", "results/chain_lifts/place.json"),
+        ("stack_block", "1000-1011", "results/chain_lifts/stack.json"),
+        ("unstack_block", "1000-1011", "results/chain_lifts/unstack.json")]
+    summaries = [a[2] for a in every_call if a[:2] == ["python", "results/chain_lifts/summarise.py"]]
+    assert summaries == [f"results/chain_lifts/{name}.json" for name in ("lifts", "stack", "place", "unstack")]
+    stacked = [a for a in every_call if a[0] == "evaluate" and "--stacked-picks" in a]
+    assert sorted((option(a, "--policy"), option(a, "--seed")) for a in stacked) == sorted(
+        (policy, str(seed)) for policy in ("oracle", "models/trivla_cpu") for seed in range(1000, 1006))
+    assert {option(a, "--tasks") for a in stacked} == {"lift_block,stack_block,place_in_bowl"}
+    assert ["python", "results/chain_lifts/stacked_compare.py"] in every_call

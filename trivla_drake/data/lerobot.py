@@ -52,6 +52,7 @@ MISSED_GRASPS_KEY = "trivla/missed_grasps"  # the first grasp was made to miss, 
 APPROACH_DRIFTS_KEY = "trivla/approach_drifts"  # the hand drifted off on its way to the first grasp (--approach-drifts)
 TAKEOVER_KEY = "trivla/takeover"  # a learned policy drove first (--takeover CHECKPOINT): the checkpoint's folder
 PRELUDE_KEY = "trivla/prelude"  # tasks the oracle completed, unrecorded, before the episode's (--prelude-tasks)
+STACKED_PICK_KEY = "trivla/stacked_pick"  # the block to pick up started on top of another (--stacked-picks)
 DETOURS_KEY = "trivla/detours"  # places the oracle visited before its task (eval/collect.py, --detours)
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {

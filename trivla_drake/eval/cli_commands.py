@@ -51,6 +51,7 @@ def run_collect(args: argparse.Namespace) -> int:
             approach_drifts=args.approach_drifts,
             takeover=args.takeover,
             prelude_tasks=args.prelude_tasks,
+            stacked_picks=args.stacked_picks,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -88,6 +89,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             ensemble_decay=args.ensemble_decay,
             prelude=args.prelude,
             home_first=args.home_first,
+            stacked_picks=args.stacked_picks,
         )
         if args.threads < 1:
             raise ValueError(f"--threads must be at least 1, got {args.threads}")
@@ -164,6 +166,12 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
              "and the hand (data for the later tasks of 5-task chains; default 0: from the start posture). "
              "Episodes started from now on get this setting.",
     )
+    parser.add_argument(
+        "--stacked-picks", type=float, default=0.0, metavar="FRACTION",
+        help="this fraction of the lift, place in bowl and stack episodes (drawn per episode) start with a stack "
+             "and pick up its top block, a grasp 5-task chains ask for (default 0: their scenes have no stack). "
+             "Episodes started from now on get this setting.",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     parser.set_defaults(run=run_collect)
@@ -218,6 +226,9 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                              "chain's later tasks, a task after --prelude) the hand first goes back to the start "
                              "posture's pose, scripted, and the policy acts once the arm has settled there (or after "
                              "108 steps); those steps count against the task's")
+    parser.add_argument("--stacked-picks", action="store_true",
+                        help="every lift, place in bowl and stack episode starts with a stack and picks up its top "
+                             "block, as a chain may ask (the single-task scenes have no stack); other tasks as usual")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

@@ -46,6 +46,7 @@ from trivla_drake.data.lerobot import (
     MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
     PRELUDE_KEY,
+    STACKED_PICK_KEY,
     TAKEOVER_KEY,
     YAW_TWISTS_KEY,
     LeRobotWriter,
@@ -114,6 +115,9 @@ class CollectConfig:
     # unrecorded, so the episode starts where a chain's earlier tasks leave the scene and the hand
     # (0: from the start posture). Recorded per episode (PRELUDE_KEY, the tasks' names).
     prelude_tasks: int = 0
+    # This fraction of the lift, place in bowl and stack episodes (drawn per attempt) start with a stack and pick
+    # up its top block (`run_episode(stacked_pick=True)`), a grasp chains ask for (results/chain_lifts/).
+    stacked_picks: float = 0.0
 
     def validate(self) -> None:
         if self.episodes_per_task < 1:
@@ -140,6 +144,12 @@ class CollectConfig:
                 or not 0 <= self.prelude_tasks <= MAX_PRELUDE_TASKS):
             raise ValueError(f"--prelude-tasks must be an integer from 0 to {MAX_PRELUDE_TASKS} (a chain has "
                              f"{MAX_PRELUDE_TASKS + 1} tasks), got {self.prelude_tasks!r}")
+        if isinstance(self.stacked_picks, bool) or not isinstance(self.stacked_picks, (int, float)) \
+                or not 0.0 <= self.stacked_picks <= 1.0:
+            raise ValueError(f"--stacked-picks must be a fraction from 0 to 1, got {self.stacked_picks!r}")
+        if self.stacked_picks and self.prelude_tasks:
+            raise ValueError("--stacked-picks and --prelude-tasks cannot be combined: a prelude redraws the block to "
+                             "pick up in the scene it leaves")
         for name in self.tasks:
             get_task(name)
 
@@ -176,6 +186,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     """Run one oracle attempt; on success stage its videos. Top level: runs in workers."""
     from trivla_drake.eval.episode import derive_seed, run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
+    from trivla_drake.tasks.suite import STACKED_PICK_TASKS
 
     seed = derive_seed(config.seed, task, attempt)
     oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps,
@@ -184,14 +195,16 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     prelude = 0
     if config.prelude_tasks:
         prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
+    stacked = task in STACKED_PICK_TASKS and bool(
+        np.random.default_rng(derive_seed(seed, "stacked_picks")).random() < config.stacked_picks)
     disturbance = config.disturbance()
     if isinstance(disturbance, PolicyTakeover):  # the expert plans again from where the policy hands back
         disturbance = replace(disturbance, expert=oracle)
     result = run_episode(
         task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=disturbance,
-        prelude=prelude, prelude_policy=OraclePolicy() if prelude else None,
+        prelude=prelude, prelude_policy=OraclePolicy() if prelude else None, stacked_pick=stacked,
     )
-    out = {"task": task, "attempt": attempt, **result.to_dict()}
+    out = {"task": task, "attempt": attempt, **result.to_dict(), "stacked_pick": stacked}
     if not result.success:
         return out
     from trivla_drake.data.video import write_video
@@ -295,6 +308,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({TAKEOVER_KEY: Path(config.takeover).resolve().name} if config.takeover else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
                         **({PRELUDE_KEY: result["prelude"]} if result.get("prelude") else {}),
+                        **({STACKED_PICK_KEY: True} if result.get("stacked_pick") else {}),
                     },
                 )
                 done[task].add(attempt)

@@ -234,8 +234,12 @@ def run_episode(
     prelude: int = 0,
     prelude_policy: Policy | None = None,
     prelude_draw=None,
+    stacked_pick: bool = False,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
+
+    `stacked_pick` (lift, place in bowl, stack): the scene starts with a stack and the block to pick up is on
+    top of it (`sample_task_instance`), a grasp a chain may ask for and a single task otherwise never does.
 
     `action_noise` disturbs the applied actions in bursts, twists the hand's yaw once on its way
     down to the first grasp (DART data collection, eval/action_noise.py), or makes the first grasp
@@ -263,7 +267,7 @@ def run_episode(
         image_size = 224
     env = shared_env(image_size, scenario)
     rng = np.random.default_rng(seed)
-    spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase)
+    spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase, stacked_pick=stacked_pick)
     recorder = _Recorder(keep_trajectory, video_path, env.action_space.control_rate_hz)
     policy_seed = int(rng.integers(2**31))
     done: list[str] = []

@@ -68,6 +68,9 @@ class EvalConfig:
     # a task after a prelude) the hand first goes back to the start posture's pose, scripted, and the policy
     # acts once the arm has settled there or 108 steps are spent (eval/home_first.py); its steps count.
     home_first: bool = False
+    # Every lift, place in bowl and stack episode starts with a stack, its block to pick up on top (a grasp chains
+    # ask for and the single tasks' scenes never have, results/chain_lifts/); the other tasks are unchanged.
+    stacked_picks: bool = False
 
     def validate(self) -> None:
         if not self.tasks and self.chains <= 0:
@@ -93,6 +96,14 @@ class EvalConfig:
             from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay
 
             check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
+        if self.stacked_picks:
+            from trivla_drake.tasks.suite import STACKED_PICK_TASKS
+
+            if not set(self.tasks) & set(STACKED_PICK_TASKS):
+                raise ValueError(f"--stacked-picks applies to {', '.join(STACKED_PICK_TASKS)}; --tasks has none of them")
+            if self.prelude:
+                raise ValueError("--stacked-picks and --prelude cannot be combined: a prelude redraws the block to "
+                                 "pick up in the scene it leaves")
         if self.home_first and self.policy == "oracle":
             raise ValueError("--home-first applies to learned policies, not to --policy oracle (it plans from "
                              "wherever the hand is)")
@@ -122,6 +133,7 @@ def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | No
 def _run_job(config: EvalConfig, job: tuple) -> dict:
     """One episode or chain; top level so that worker processes can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
+    from trivla_drake.tasks.suite import STACKED_PICK_TASKS
 
     policy = _policy(*config.policy_key())
     kind, name, index = job
@@ -141,6 +153,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 max_steps=config.max_steps,
                 prelude=config.prelude,
                 prelude_policy=_policy("oracle") if config.prelude else None,
+                stacked_pick=config.stacked_picks and name in STACKED_PICK_TASKS,
             )
             if not (config.prelude and result.reason.startswith("prelude")):
                 break

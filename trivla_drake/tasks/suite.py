@@ -540,16 +540,27 @@ def parse_task_list(text: str | None) -> list[str]:
     return names
 
 
+# Tasks that start with a grasp of their first block, which chains may ask to pick off the top of a stack.
+STACKED_PICK_TASKS = ("lift_block", "place_in_bowl", "stack_block")
+
+
 def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraphrase: bool = False,
-                         max_tries: int = 200):
+                         max_tries: int = 200, stacked_pick: bool = False):
     """A random initial scene in which `task` can start, its parameters and instruction:
-    (SceneSpec, TaskInstance). The scene is resampled until a candidate exists."""
+    (SceneSpec, TaskInstance). The scene is resampled until a candidate exists. With `stacked_pick` (a task
+    of STACKED_PICK_TASKS) the scene starts with a stack and the block to pick up is its top one, as a chain
+    may ask (results/chain_lifts/); the single-task scenes have no stack."""
     from trivla_drake.tasks.scene import sample_scene, scene_from_spec
 
+    if stacked_pick and task.name not in STACKED_PICK_TASKS:
+        raise ValueError(f"stacked_pick applies to {', '.join(STACKED_PICK_TASKS)}, not to {task.name}")
+    options = {**task.scene_options, "stack": True} if stacked_pick else task.scene_options
     for _ in range(max_tries):
-        spec = sample_scene(rng, layout, **task.scene_options)
+        spec = sample_scene(rng, layout, **options)
         scene = scene_from_spec(spec, layout)
         candidates = task.candidates(scene)
+        if stacked_pick:
+            candidates = [p for p in candidates if scene.base_of(p[0]) is not None]
         if candidates:
             params = candidates[int(rng.integers(len(candidates)))]
             instance = TaskInstance(task.name, params, task.instruction(params, rng, paraphrase=paraphrase))
@@ -559,6 +570,7 @@ def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraph
 
 __all__ = [
     "BLOCK_SIZE",
+    "STACKED_PICK_TASKS",
     "ON_TABLE_MAX_Z",
     "TASKS",
     "TASK_NAMES",
