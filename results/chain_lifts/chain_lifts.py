@@ -16,7 +16,7 @@ try:
 - where it is in the chain and what came before, the homing's steps (a lift's budget is 360 steps);
 - the named block at the task's start: on the table or on another block, its yaw against the hand's, how far
   the nearest other block is, whether the drawer is open and the lamp on;
-- per chunk the policy plans: the tool-centre point, the fingers' width, the block, whether it is held;
+- per chunk the policy plans: the tool-centre point, the block, whether it is held, whether the chunk closes;
   from them the first chunk that commands the gripper closed (its x-y distance to the block and its height),
   how often it closes, whether the block was ever held and how high it got.
 
@@ -63,16 +63,15 @@ class ChunkRecorder:
         self.policy.reset(instruction, seed)
 
     def act(self, observation: dict) -> np.ndarray:
-        record = self.tasks[-1]
         from trivla_drake.eval.policies import as_action_rows
 
+        record = self.tasks[-1]
         rows = as_action_rows(self.policy.act(observation))  # (k, 7): the oracle gives one row, TriVLA a chunk
         scene = self.env.scene()
         color = record["color"]
         record["chunks"].append({
             "step": self.env.step_index - record["start_step"],
             "tcp": [float(v) for v in observation["tcp_pose"][:3, 3]],
-            "width": float(observation["state"][7] + observation["state"][8]),
             "block": None if color is None else [float(v) for v in scene.block_position(color)],
             "held": bool(color is not None and scene.is_held(color)),
             "closes": bool(np.any(rows[:, 6] <= 0)),

@@ -12,18 +12,18 @@ from pathlib import Path
 import numpy as np
 
 
-def _median(values) -> str:
+def _median(values, digits: int = 0) -> str:
     values = [v for v in values if v is not None]
-    return f"{np.median(values):.0f}" if values else "-"
+    return f"{np.median(values):.{digits}f}" if values else "-"
 
 
-def _median_cm(values) -> str:
-    values = [v for v in values if v is not None]
-    return f"{np.median(values):.1f}" if values else "-"
+def _held_mode(task: str) -> str:
+    """The last failure mode: the block was held, but the task's end was not reached."""
+    return "held the block, not lifted 10 cm" if task == "lift_block" else "held the block, not put down right"
 
 
 def failure_mode(row: dict) -> str:
-    """How a lift that did not succeed within its 360 steps went."""
+    """How a try went, judged within its task's budget."""
     if row["success"]:
         return "succeeded"
     if row["success_extended"]:
@@ -32,11 +32,11 @@ def failure_mode(row: dict) -> str:
         return "never closed the gripper"
     if not row["ever_held"]:
         return "closed, never held the block"
-    return "held the block, not lifted 10 cm" if row["task"] == "lift_block" else "held the block, not put down right"
+    return _held_mode(row["task"])
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
-    """The lifts by where they start: single (the start posture), then each chain position."""
+    """The tries by where they start: single episodes (the start posture), then each chain position."""
     groups = [("single episodes, start posture", [r for r in rows if r["position"] == 0])]
     positions = sorted({r["position"] for r in rows if r["position"] > 0})
     groups += [(f"chain task {p}" + (" (not homed)" if p == 1 else ""), [r for r in rows if r["position"] == p])
@@ -84,7 +84,7 @@ def success_table(rows: list[dict], budget: int, extended: int) -> list[str]:
         lines.append(f"| {label} | {len(group)} | {sum(r['success'] for r in group)} | "
                      f"{sum(r['success_extended'] for r in group)} | {_median(r['homing_steps'] for r in group if r['position'] > 1)} | "
                      f"{_median(wins)}{most} | "
-                     f"{_median_cm(r['first_close']['xy_to_block_cm'] if r['first_close'] else None for r in group)} |")
+                     f"{_median([r['first_close']['xy_to_block_cm'] if r['first_close'] else None for r in group], 1)} |")
     return lines
 
 
@@ -111,7 +111,7 @@ def scene_table(rows: list[dict]) -> list[str]:
 
 def mode_table(rows: list[dict]) -> list[str]:
     modes = ("succeeded", "succeeded after its budget", "never closed the gripper", "closed, never held the block",
-             "held the block, not lifted 10 cm" if rows[0]["task"] == "lift_block" else "held the block, not put down right")
+             _held_mode(rows[0]["task"]))
     groups = (("single episodes", [r for r in rows if r["position"] == 0]),
               ("in chains", [r for r in rows if r["position"] > 0]))
     lines = ["| outcome | " + " | ".join(label for label, _ in groups) + " |",
