@@ -1058,3 +1058,30 @@ if [[ "${CHAIN_LIFTS:-0}" == 1 ]]; then
   done
   "${PYTHON:-python}" "$CL/stacked_compare.py" > "$CL/stacked_picks/compare.md"
 fi
+# 55. Optional (STACKED_DEMOS=1, after step 54; results/stacked_pick_demos/, session 52; about 2 h): do demonstrations
+#     of picking a block off another teach that grasp? A pilot on a small mix: 180 clean demonstrations (15 per task)
+#     and 60 more of lift, stack and place in bowl whose block to pick up stands on another (`collect --stacked-picks
+#     1`, 20 per task); step 49's follow command on it from the shipped model, 1500 steps; exported; lift, stack and
+#     place with a stacked pick (seeds 1000-1005, against step 54's shipped files) and from their usual scenes, and
+#     the twelve tasks on seeds 1000-1005, compared with the shipped model.
+if [[ "${STACKED_DEMOS:-0}" == 1 ]]; then
+  STACKED_DATA=${STACKED_DATA:-$DATA-stacked-pilot}
+  SD=results/stacked_pick_demos
+  mkdir -p "$SD"
+  trivla-drake collect --out "$STACKED_DATA" --episodes-per-task 15 --workers 2 --no-progress
+  trivla-drake collect --out "$STACKED_DATA" --tasks lift_block,stack_block,place_in_bowl --episodes-per-task 35 \
+      --stacked-picks 1 --workers 2 --no-progress
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$STACKED_DATA" --out "$RUNS/stackedfollow" --init models/trivla_cpu \
+      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 1500 --seed 46 --subgoal-offset \
+      --ema-decay 0.999
+  trivla-drake export "$RUNS/stackedfollow/final" --out "$RUNS/stackedfollow_export" --drop-unused-llm-layers
+  for seed in 1000 1001 1002 1003 1004 1005; do
+    trivla-drake evaluate --policy "$RUNS/stackedfollow_export" --tasks lift_block,stack_block,place_in_bowl \
+        --episodes 2 --seed "$seed" --stacked-picks --workers 2 --no-progress --json > "$SD/stacked_picks_seed$seed.json"
+  done
+  six_seeds "$RUNS/stackedfollow_export" "$SD/stackedfollow"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SD/stacked_picks.png" \
+      shipped=results/chain_lifts/stacked_picks/shipped stackedfollow="$SD/stacked_picks" > "$SD/stacked_picks.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SD/compare.png" \
+      shipped=results/grounding_scenes/refit stackedfollow="$SD/stackedfollow" > "$SD/compare.md"
+fi

@@ -48,6 +48,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
+           "STACKED_DEMOS": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -555,8 +556,30 @@ def test_step_54_traces_each_grasp_task_of_the_chains_and_summarises_it(every_ca
         ("unstack_block", "1000-1011", "results/chain_lifts/unstack.json")]
     summaries = [a[2] for a in every_call if a[:2] == ["python", "results/chain_lifts/summarise.py"]]
     assert summaries == [f"results/chain_lifts/{name}.json" for name in ("lifts", "stack", "place", "unstack")]
-    stacked = [a for a in every_call if a[0] == "evaluate" and "--stacked-picks" in a]
+    stacked = [a for a in every_call if a[0] == "evaluate" and "--stacked-picks" in a
+               and option(a, "--policy") != "runs/stackedfollow_export"]  # step 55's are its own
     assert sorted((option(a, "--policy"), option(a, "--seed")) for a in stacked) == sorted(
         (policy, str(seed)) for policy in ("oracle", "models/trivla_cpu") for seed in range(1000, 1006))
     assert {option(a, "--tasks") for a in stacked} == {"lift_block,stack_block,place_in_bowl"}
     assert ["python", "results/chain_lifts/stacked_compare.py"] in every_call
+
+
+def test_step_55_follows_the_shipped_model_on_clean_and_stacked_pick_demonstrations_with_step_49_s_command(calls,
+                                                                                                          every_call):
+    stacked = run_writing(calls, "runs/stackedfollow")
+    ship = run_writing(calls, "runs/shipfollow")
+    assert option(stacked, "--data") == "data/sim-stacked-pilot" and option(stacked, "--steps") == "1500"
+    assert _without(stacked, "--data", "--out", "--steps") == _without(ship, "--data", "--out", "--steps")
+    collects = [a for a in calls if a[0] == "collect" and option(a, "--out") == "data/sim-stacked-pilot"]
+    assert [(option(a, "--episodes-per-task"), option(a, "--stacked-picks"), option(a, "--tasks")) for a in collects] == [
+        ("15", None, None), ("35", "1", "lift_block,stack_block,place_in_bowl")]
+    assert calls.index(collects[-1]) < calls.index(stacked)
+    evaluations = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/stackedfollow_export"]
+    picks = [a for a in evaluations if "--stacked-picks" in a]
+    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+    assert {option(a, "--tasks") for a in picks} == {"lift_block,stack_block,place_in_bowl"}
+    assert sorted(option(a, "--seed") for a in evaluations if a not in picks) == [str(s) for s in range(1000, 1006)]
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("stackedfollow=") for x in a)]
+    assert [a[3] for a in compares] == ["shipped=results/chain_lifts/stacked_picks/shipped",
+                                        "shipped=results/grounding_scenes/refit"]
