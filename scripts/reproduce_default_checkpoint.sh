@@ -1058,12 +1058,12 @@ if [[ "${CHAIN_LIFTS:-0}" == 1 ]]; then
   done
   "${PYTHON:-python}" "$CL/stacked_compare.py" > "$CL/stacked_picks/compare.md"
 fi
-# 55. Optional (STACKED_DEMOS=1, after step 54; results/stacked_pick_demos/, session 52; about 2 h): do demonstrations
+# 55. Optional (STACKED_DEMOS=1, after step 54; results/stacked_pick_demos/, session 52; about 1 h 30 min): do demonstrations
 #     of picking a block off another teach that grasp? A pilot on a small mix: 180 clean demonstrations (15 per task)
 #     and 60 more of lift, stack and place in bowl whose block to pick up stands on another (`collect --stacked-picks
 #     1`, 20 per task); step 49's follow command on it from the shipped model, 1500 steps; exported; lift, stack and
-#     place with a stacked pick (seeds 1000-1005, against step 54's shipped files) and from their usual scenes, and
-#     the twelve tasks on seeds 1000-1005, compared with the shipped model.
+#     place with a stacked pick (seeds 1000-1005, against step 54's shipped files), and the twelve tasks from their
+#     usual scenes on seeds 1000-1005, compared with the shipped model.
 if [[ "${STACKED_DEMOS:-0}" == 1 ]]; then
   STACKED_DATA=${STACKED_DATA:-$DATA-stacked-pilot}
   SD=results/stacked_pick_demos
