@@ -48,7 +48,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
-           "STACKED_DEMOS": "1",
+           "STACKED_DEMOS": "1", "KEEP_NORM": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -557,7 +557,7 @@ def test_step_54_traces_each_grasp_task_of_the_chains_and_summarises_it(every_ca
     summaries = [a[2] for a in every_call if a[:2] == ["python", "results/chain_lifts/summarise.py"]]
     assert summaries == [f"results/chain_lifts/{name}.json" for name in ("lifts", "stack", "place", "unstack")]
     stacked = [a for a in every_call if a[0] == "evaluate" and "--stacked-picks" in a
-               and option(a, "--policy") != "runs/stackedfollow_export"]  # step 55's are its own
+               and option(a, "--policy") not in ("runs/stackedfollow_export", "runs/keepnorm_export")]  # 55's, 56's
     assert sorted((option(a, "--policy"), option(a, "--seed")) for a in stacked) == sorted(
         (policy, str(seed)) for policy in ("oracle", "models/trivla_cpu") for seed in range(1000, 1006))
     assert {option(a, "--tasks") for a in stacked} == {"lift_block,stack_block,place_in_bowl"}
@@ -583,3 +583,22 @@ def test_step_55_follows_the_shipped_model_on_clean_and_stacked_pick_demonstrati
                 and any(x.startswith("stackedfollow=") for x in a)]
     assert [a[3] for a in compares] == ["shipped=results/chain_lifts/stacked_picks/shipped",
                                         "shipped=results/grounding_scenes/refit"]
+
+
+def test_step_56_is_step_55_s_follow_with_the_shipped_models_normalisation_kept(calls, every_call):
+    kept = run_writing(calls, "runs/keepnorm")
+    refit = run_writing(calls, "runs/stackedfollow")
+    assert "--keep-normalization" in kept and "--keep-normalization" not in refit
+    assert [a for a in _without(kept, "--out") if a != "--keep-normalization"] == _without(refit, "--out")
+    assert calls.index(refit) < calls.index(kept)
+    evaluations = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/keepnorm_export"]
+    picks = [a for a in evaluations if "--stacked-picks" in a]
+    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in evaluations if a not in picks) == [str(s) for s in range(1000, 1006)]
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("kept=") for x in a)]
+    assert [a[3:] for a in compares] == [
+        ["shipped=results/chain_lifts/stacked_picks/shipped", "refit=results/stacked_pick_demos/stacked_picks",
+         "kept=results/kept_normalization/stacked_picks"],
+        ["shipped=results/grounding_scenes/refit", "refit=results/stacked_pick_demos/stackedfollow",
+         "kept=results/kept_normalization/keepnorm"]]

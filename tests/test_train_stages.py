@@ -660,3 +660,43 @@ def test_fresh_system1_trains_a_new_system1_on_the_init_models_systems_2_and_3(r
     assert not _same(_weights(other, "policy."), _weights(expected, "policy."))
     with pytest.raises(ValueError, match="fresh_system1.*needs --stage policy, --init and --grounding-phase joint"):
         TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"), fresh_system1=True).resolved().validate()
+
+
+def _narrowed_copy(data, out):
+    """A copy of `data` whose meta/stats.json gives every action half its range (the frames unchanged)."""
+    shutil.copytree(data, out)
+    stats_path = Path(out) / "meta" / "stats.json"
+    stats = json.loads(stats_path.read_text())
+    stats["action"]["min"] = [0.5 * v for v in stats["action"]["min"]]
+    stats["action"]["max"] = [0.5 * v for v in stats["action"]["max"]]
+    stats_path.write_text(json.dumps(stats))
+    return str(out)
+
+
+def test_keep_normalization_keeps_the_init_models_statistics_and_a_refit_says_what_narrowed(runs, tmp_path, capsys):
+    """A follow on a dataset with narrower action ranges: by default the statistics are refitted to it and a
+    note names the narrowed dimensions; --keep-normalization keeps --init's exactly."""
+    init = load_checkpoint(runs["policy"]["final_checkpoint"]).normalization
+    narrow = _narrowed_copy(runs["data"], tmp_path / "narrow")
+    refit = train(TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "refit"), steps=1,
+                              init=runs["policy"]["final_checkpoint"], **runs["common"]))
+    note = capsys.readouterr().err
+    assert "action ranges are narrower" in note and "--keep-normalization" in note
+    refitted = load_checkpoint(refit["final_checkpoint"]).normalization
+    assert refitted.action_max == pytest.approx([0.5 * v for v in init.action_max])
+    kept = train(TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "kept"), steps=1,
+                             init=runs["policy"]["final_checkpoint"], keep_normalization=True, **runs["common"]))
+    assert "narrower" not in capsys.readouterr().err
+    assert load_checkpoint(kept["final_checkpoint"]).normalization == init
+    with pytest.raises(ValueError, match="keep_normalization.*needs --stage policy and --init"):
+        TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "v"), keep_normalization=True).resolved().validate()
+
+
+def test_narrowed_action_ranges_names_only_the_dimensions_that_shrank():
+    from trivla_drake.nn.normalization import NormalizationStats
+    from trivla_drake.train.datasets import narrowed_action_ranges
+
+    old = NormalizationStats([0.0], [1.0], [-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])
+    new = NormalizationStats([0.0], [1.0], [-1.0, -0.9, -2.0], [1.0, 0.3, 2.0])
+    assert narrowed_action_ranges(old, new, ("x", "z", "w")) == ["z [-1, 1] -> [-0.9, 0.3]"]
+    assert narrowed_action_ranges(old, old, ("x", "z", "w")) == []

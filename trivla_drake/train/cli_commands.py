@@ -93,6 +93,7 @@ def config_from_args(args: argparse.Namespace):
         grounding_carry_tasks=tuple(t for t in (args.grounding_carry_tasks or "").split(",") if t),
         system2_from=args.system2_from,
         fresh_system1=args.fresh_system1,
+        keep_normalization=args.keep_normalization,
         grounding_reads_tcp=args.grounding_reads_tcp,
         grounding_reads_gripper=args.grounding_reads_gripper,
         grounding_anchor_camera=default_camera_calibration("static_camera") if args.grounding_anchor else (),
@@ -238,6 +239,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--fresh-system1", action="store_true",
                         help="policy, with --init: train a fresh System 1 (drawn from --seed) on --init's Systems 2 "
                              "and 3, keeping its System 1 options (e.g. the 10%%-data arm of the tables)")
+    parser.add_argument("--keep-normalization", action="store_true",
+                        help="policy, with --init: keep --init's state and action statistics instead of fitting "
+                             "them to --data (a follow on a dataset whose action ranges are narrower)")
     parser.add_argument("--grounding-reads-tcp", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
                              "point's features, to place its sub-goal from the wrist view (added when --init's "

@@ -204,6 +204,10 @@ class TrainConfig:
     # with its options (grounding, sub-goal offset, ...): System 1 trained from scratch on frozen
     # pretrained Systems 2 / 3, as the 10%-data arm of Table 1 is (results/data_efficiency).
     fresh_system1: bool = False
+    # policy stage, with --init: keep the --init model's state and action normalisation (what its System 1
+    # learnt its outputs in) instead of fitting it to --data's meta/stats.json; for a follow on a dataset whose
+    # action ranges differ (results/kept_normalization). Off: refit, as every shipped step did.
+    keep_normalization: bool = False
     # policy stage, with a grounding: the grounding also reads the tool-centre point's features
     # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
     # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
@@ -348,6 +352,9 @@ class TrainConfig:
             raise ValueError("fresh_system1 (--fresh-system1) trains a new System 1 on the Systems 2 / 3 of a --init "
                              "model: it needs --stage policy, --init and --grounding-phase joint (bind and follow "
                              "go on from a System 1 that has learnt something)")
+        if self.keep_normalization and not (self.stage == "policy" and self.init):
+            raise ValueError("keep_normalization (--keep-normalization) keeps the state and action statistics of a "
+                             "--init checkpoint: it needs --stage policy and --init")
         if self.system2_from is not None:
             if not (self.stage == "policy" and self.init and self.use_system2):
                 raise ValueError("system2_from (--system2-from) replaces the System 2 of a --init model in the policy "

@@ -118,6 +118,19 @@ def normalization_from_stats(reader: LeRobotReader, config: TriVLAConfig) -> Nor
     return result
 
 
+def narrowed_action_ranges(old: NormalizationStats, new: NormalizationStats, names: list[str] | tuple[str, ...],
+                           ratio: float = 0.8) -> list[str]:
+    """The action dimensions whose [min, max] range in `new` is under `ratio` of its width in `old`, as
+    "name [old min, old max] -> [new min, new max]": where refitting the statistics of a checkpoint to a
+    smaller dataset rescales what its outputs mean (a follow run that starts from that checkpoint)."""
+    changed = []
+    for i, (lo, hi, nlo, nhi) in enumerate(zip(old.action_min, old.action_max, new.action_min, new.action_max)):
+        if (nhi - nlo) < ratio * (hi - lo):
+            name = names[i] if i < len(names) else str(i)
+            changed.append(f"{name} [{lo:.4g}, {hi:.4g}] -> [{nlo:.4g}, {nhi:.4g}]")
+    return changed
+
+
 def check_cameras(reader: LeRobotReader, cameras: list[str]) -> None:
     """Raises ValueError naming a camera the dataset lacks."""
     missing = [c for c in cameras if c not in reader.camera_keys]

@@ -564,14 +564,23 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     model = build_model(config, resume_from)
     train_state = ckpt.load_train_state(resume_from) if resume_from is not None else None
     if config.stage == "policy":
-        from trivla_drake.train.datasets import check_spaces, normalization_from_stats
+        from trivla_drake.train.datasets import check_spaces, narrowed_action_ranges, normalization_from_stats
 
         where = f"checkpoint {resume_from}" if resume_from else (f"--init checkpoint {config.init}" if config.init
                                                                  else f"preset {config.preset!r}")
         check_spaces(reader, model.config, where)
         if config.stage == "policy" and model.policy.grounding is not None:
             check_grounding(reader, config.grounding_weight, where)
-        model.set_normalization(normalization_from_stats(reader, model.config))
+        fitted = normalization_from_stats(reader, model.config)
+        if config.keep_normalization:
+            _note(env, f"keeping {where}'s state and action normalisation (--keep-normalization)")
+        else:
+            if config.init and train_state is None:
+                narrowed = narrowed_action_ranges(model.normalization, fitted, model.config.action_names)
+                if narrowed:
+                    _note(env, f"--data's action ranges are narrower than {where}'s, so its outputs are rescaled: "
+                               f"{'; '.join(narrowed)} (--keep-normalization keeps --init's)")
+            model.set_normalization(fitted)
 
     torch.manual_seed(config.seed)
     model.requires_grad_(False)
