@@ -1112,3 +1112,31 @@ if [[ "${KEEP_NORM:-0}" == 1 ]]; then
       shipped=results/grounding_scenes/refit refit=results/stacked_pick_demos/stackedfollow kept="$KN/keepnorm" \
       > "$KN/compare.md"
 fi
+# 57. Optional (PRELUDE_STACKED=1; results/prelude_stacked_mix/, session 54; about 2 h): steps 55-56 followed on 240
+#     demonstrations without a chain prelude and lost the ordinary grasps. The same follow with --keep-normalization
+#     on a mix shaped like MORE_DATA's at a third of its size (8 clean and 16 prelude demonstrations per task) plus 20
+#     stacked picks each for lift, stack and place in bowl (348 episodes); the shipped model evaluated again on the
+#     same CPU kind, so that every row is paired on one machine.
+if [[ "${PRELUDE_STACKED:-0}" == 1 ]]; then
+  MIX_DATA=${MIX_DATA:-$DATA-prelude-stacked}
+  PS=results/prelude_stacked_mix
+  mkdir -p "$PS"
+  six_seeds models/trivla_cpu "$PS/shipped"
+  stacked_six_seeds models/trivla_cpu "$PS/shipped_stacked_picks"
+  trivla-drake collect --out "$MIX_DATA" --episodes-per-task 8 --workers 2 --no-progress
+  trivla-drake collect --out "$MIX_DATA" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
+  trivla-drake collect --out "$MIX_DATA" --tasks lift_block,stack_block,place_in_bowl --episodes-per-task 44 \
+      --stacked-picks 1 --workers 2 --no-progress
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MIX_DATA" --out "$RUNS/prelude_stacked" --init models/trivla_cpu \
+      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 1500 --seed 46 --subgoal-offset \
+      --ema-decay 0.999 --keep-normalization
+  trivla-drake export "$RUNS/prelude_stacked/final" --out "$RUNS/prelude_stacked_export" --drop-unused-llm-layers
+  stacked_six_seeds "$RUNS/prelude_stacked_export" "$PS/stacked_picks"
+  six_seeds "$RUNS/prelude_stacked_export" "$PS/mix"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$PS/stacked_picks.png" \
+      shipped="$PS/shipped_stacked_picks" refit=results/stacked_pick_demos/stacked_picks \
+      kept=results/kept_normalization/stacked_picks mix="$PS/stacked_picks" > "$PS/stacked_picks.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$PS/compare.png" \
+      shipped="$PS/shipped" refit=results/stacked_pick_demos/stackedfollow kept=results/kept_normalization/keepnorm \
+      mix="$PS/mix" > "$PS/compare.md"
+fi

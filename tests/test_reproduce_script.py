@@ -48,7 +48,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
-           "STACKED_DEMOS": "1", "KEEP_NORM": "1",
+           "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -232,6 +232,13 @@ def _forty_chain_seeds(calls: list[list[str]], policy: str) -> list[str]:
     """The seeds of the 20-chain evaluations of `policy`."""
     return sorted(option(argv, "--seed") for argv in calls
                   if argv[0] == "evaluate" and option(argv, "--policy") == policy and option(argv, "--chains") == "20")
+
+
+def step_57_start(argv_list: list[list[str]]) -> int:
+    """The index of step 57's first call in `argv_list` (every_call or calls): its twelve evaluations of the shipped
+    model come right before its first collect."""
+    first_collect = next(i for i, a in enumerate(argv_list) if a[0] == "collect" and "data/sim-prelude-stacked" in a)
+    return first_collect - 12
 
 
 def _without(argv: list[str], *names: str) -> list[str]:
@@ -424,6 +431,7 @@ def test_the_shipped_checkpoint_is_the_soup_with_its_grounding_refit_on_rendered
     assert [option(refit, k) for k in ("--scenes", "--steps", "--lr")] == ["12000", "1500", "3e-4"]
     later = every_call[at + 1:]
     assert not any(option(argv, "--out") == "models/trivla_cpu" for argv in later)  # the last write
+    later = every_call[at + 1:step_57_start(every_call)]  # step 57 reruns the six seeds on another CPU kind
     evaluations = [argv for argv in later if argv[0] == "evaluate" and option(argv, "--policy") == "models/trivla_cpu"
                    and option(argv, "--tasks") is None and "--home-first" not in argv]  # step 50's are a diagnostic
     runs = [argv for argv in evaluations if option(argv, "--chains") is None and option(argv, "--prelude") is None]
@@ -556,8 +564,8 @@ def test_step_54_traces_each_grasp_task_of_the_chains_and_summarises_it(every_ca
         ("unstack_block", "1000-1011", "results/chain_lifts/unstack.json")]
     summaries = [a[2] for a in every_call if a[:2] == ["python", "results/chain_lifts/summarise.py"]]
     assert summaries == [f"results/chain_lifts/{name}.json" for name in ("lifts", "stack", "place", "unstack")]
-    stacked = [a for a in every_call if a[0] == "evaluate" and "--stacked-picks" in a
-               and option(a, "--policy") not in ("runs/stackedfollow_export", "runs/keepnorm_export")]  # 55's, 56's
+    step_55 = next(i for i, a in enumerate(every_call) if a[0] == "collect" and "data/sim-stacked-pilot" in a)
+    stacked = [a for a in every_call[:step_55] if a[0] == "evaluate" and "--stacked-picks" in a]
     assert sorted((option(a, "--policy"), option(a, "--seed")) for a in stacked) == sorted(
         (policy, str(seed)) for policy in ("oracle", "models/trivla_cpu") for seed in range(1000, 1006))
     assert {option(a, "--tasks") for a in stacked} == {"lift_block,stack_block,place_in_bowl"}
@@ -596,9 +604,32 @@ def test_step_56_is_step_55_s_follow_with_the_shipped_models_normalisation_kept(
     assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
     assert sorted(option(a, "--seed") for a in evaluations if a not in picks) == [str(s) for s in range(1000, 1006)]
     compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
-                and any(x.startswith("kept=") for x in a)]
+                and any(x.startswith("kept=") for x in a) and not any(x.startswith("mix=") for x in a)]
     assert [a[3:] for a in compares] == [
         ["shipped=results/chain_lifts/stacked_picks/shipped", "refit=results/stacked_pick_demos/stacked_picks",
          "kept=results/kept_normalization/stacked_picks"],
         ["shipped=results/grounding_scenes/refit", "refit=results/stacked_pick_demos/stackedfollow",
          "kept=results/kept_normalization/keepnorm"]]
+
+
+def test_step_57_follows_with_kept_statistics_on_a_prelude_mix_with_stacked_picks_and_reruns_the_shipped_model(
+        calls, every_call):
+    mix = run_writing(calls, "runs/prelude_stacked")
+    kept = run_writing(calls, "runs/keepnorm")
+    assert option(mix, "--data") == "data/sim-prelude-stacked" and "--keep-normalization" in mix
+    assert _without(mix, "--data", "--out") == _without(kept, "--data", "--out")
+    collects = [a for a in calls if a[0] == "collect" and option(a, "--out") == "data/sim-prelude-stacked"]
+    assert [(option(a, "--episodes-per-task"), option(a, "--prelude-tasks"), option(a, "--stacked-picks"),
+             option(a, "--tasks")) for a in collects] == [
+        ("8", None, None, None), ("24", "4", None, None), ("44", None, "1", "lift_block,stack_block,place_in_bowl")]
+    assert calls.index(collects[-1]) < calls.index(mix)
+    for policy in ("models/trivla_cpu", "runs/prelude_stacked_export"):  # the shipped model rerun on this CPU too
+        evaluations = [a for a in calls[step_57_start(calls):] if a[0] == "evaluate"
+                       and option(a, "--policy") == policy]
+        picks = [a for a in evaluations if "--stacked-picks" in a]
+        assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+        assert sorted(option(a, "--seed") for a in evaluations if a not in picks) == [str(s) for s in range(1000, 1006)]
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("mix=") for x in a)]
+    assert [a[3] for a in compares] == ["shipped=results/prelude_stacked_mix/shipped_stacked_picks",
+                                        "shipped=results/prelude_stacked_mix/shipped"]
