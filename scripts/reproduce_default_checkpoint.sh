@@ -36,6 +36,13 @@ six_seeds() {  # six_seeds POLICY PREFIX [flags...]: `evaluate --episodes 2` on 
         > "${prefix}_seed$seed.json"
   done
 }
+kept_stats_follow() {  # kept_stats_follow DATA RUN: step 49's follow of the shipped model, 1500 steps, its action
+  #   statistics kept (steps 56-57) -> RUN/final and its export RUN_export
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$1" --out "$2" --init models/trivla_cpu --grounding-phase follow \
+      --grounding-carry "$CARRYING" --lr 3e-4 \
+      --steps 1500 --seed 46 --subgoal-offset --ema-decay 0.999 --keep-normalization
+  trivla-drake export "$2/final" --out "$2_export" --drop-unused-llm-layers
+}
 stacked_six_seeds() {  # stacked_six_seeds POLICY PREFIX: lift, stack and place with `--stacked-picks` on seeds 1000-1005
   #   -> PREFIX_seedS.json
   local policy=$1 prefix=$2 seed
@@ -1099,10 +1106,7 @@ if [[ "${KEEP_NORM:-0}" == 1 ]]; then
   STACKED_DATA=${STACKED_DATA:-$DATA-stacked-pilot}
   KN=results/kept_normalization
   mkdir -p "$KN"
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$STACKED_DATA" --out "$RUNS/keepnorm" --init models/trivla_cpu \
-      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 1500 --seed 46 --subgoal-offset \
-      --ema-decay 0.999 --keep-normalization
-  trivla-drake export "$RUNS/keepnorm/final" --out "$RUNS/keepnorm_export" --drop-unused-llm-layers
+  kept_stats_follow "$STACKED_DATA" "$RUNS/keepnorm"
   stacked_six_seeds "$RUNS/keepnorm_export" "$KN/stacked_picks"
   six_seeds "$RUNS/keepnorm_export" "$KN/keepnorm"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KN/stacked_picks.png" \
@@ -1127,10 +1131,7 @@ if [[ "${PRELUDE_STACKED:-0}" == 1 ]]; then
   trivla-drake collect --out "$MIX_DATA" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
   trivla-drake collect --out "$MIX_DATA" --tasks lift_block,stack_block,place_in_bowl --episodes-per-task 44 \
       --stacked-picks 1 --workers 2 --no-progress
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$MIX_DATA" --out "$RUNS/prelude_stacked" --init models/trivla_cpu \
-      --grounding-phase follow --grounding-carry "$CARRYING" --lr 3e-4 --steps 1500 --seed 46 --subgoal-offset \
-      --ema-decay 0.999 --keep-normalization
-  trivla-drake export "$RUNS/prelude_stacked/final" --out "$RUNS/prelude_stacked_export" --drop-unused-llm-layers
+  kept_stats_follow "$MIX_DATA" "$RUNS/prelude_stacked"
   stacked_six_seeds "$RUNS/prelude_stacked_export" "$PS/stacked_picks"
   six_seeds "$RUNS/prelude_stacked_export" "$PS/mix"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$PS/stacked_picks.png" \
