@@ -138,6 +138,35 @@ def test_chain_start_scenes_start_where_a_prelude_left_the_arm_and_keep_their_ta
         assert np.linalg.norm(tcp - home_tcp) > 0.05  # not the start posture: a prelude's end or the way on
 
 
+def test_stacked_pick_scenes_name_the_top_block_of_a_stack_and_are_labelled_at_its_height():
+    from trivla_drake.tasks.suite import BLOCK_SIZE, STACKED_PICK_TASKS
+
+    layout, kinematics = Layout.default(), PandaKinematics()
+    assert "stacked_picks" not in gs.grounding_scene_settings(scenes=2, seed=0, image_size=32)
+    assert gs.grounding_scene_settings(scenes=2, seed=0, image_size=32, stacked_picks=0.3)["stacked_picks"] == 0.3
+    with pytest.raises(ValueError, match="stacked_picks must be a fraction"):
+        gs.grounding_scene_settings(scenes=2, seed=0, image_size=32, stacked_picks=-0.1)
+    for index in range(12):  # two scenes of each of the six tasks, at the start and along the approach
+        plain = gs.sample_grounding_scene(index, 5, layout, kinematics)
+        stacked = gs.sample_grounding_scene(index, 5, layout, kinematics, 0.0, 1.0)
+        assert not plain["stacked_pick"]
+        if stacked["task"] not in STACKED_PICK_TASKS:  # the other tasks' scenes are drawn as before
+            assert not stacked["stacked_pick"] and stacked["instruction"] == plain["instruction"]
+            np.testing.assert_array_equal(stacked["state"], plain["state"])
+            continue
+        scene = scene_from_spec(stacked["spec"], layout)
+        label = stacked["subgoal_position"]
+        under_label = [c for c in stacked["spec"].blocks if np.linalg.norm(scene.block_position(c)[:2] - label[:2]) < 0.01]
+        picked = max(under_label, key=lambda c: scene.block_position(c)[2])  # a stack's blocks share their x-y
+        base = scene.base_of(picked)
+        assert stacked["stacked_pick"] and base is not None and picked in stacked["instruction"], stacked["instruction"]
+        top = scene.block_position(picked)
+        assert top[2] > scene.block_position(base)[2] + 0.9 * BLOCK_SIZE
+        # The label is the plan's grasp of the top block: at its height, above its centre in x-y.
+        assert abs(stacked["subgoal_position"][2] - plain["subgoal_position"][2] - BLOCK_SIZE) < 0.01
+        assert np.linalg.norm(stacked["subgoal_position"][:2] - top[:2]) < 0.01
+
+
 def test_a_set_is_rendered_once_read_back_and_never_overwritten_by_other_settings(tmp_path):
     settings = gs.grounding_scene_settings(scenes=2, seed=3, image_size=32)
     folder = gs.ensure_grounding_scenes(tmp_path / "scenes", settings, progress=False)
@@ -251,17 +280,24 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     data = write_synthetic_dataset(tmp_path / "d", episodes=2, length=10, image_size=16, tcp_pose=True)
     script = results_script("grounding_scenes/refit_grounding.py")
     monkeypatch.setattr("sys.argv", ["refit_grounding.py", str(tmp_path / "in"), data, str(tmp_path / "out"),
-                                     "--scenes", "4", "--test-scenes", "2", "--chain-starts", "0.5", "--steps", "3", "--lr", "0.01", "--threads", "1",
+                                     "--scenes", "4", "--test-scenes", "2", "--chain-starts", "0.5", "--stacked-picks", "0.5",
+                                     "--steps", "3", "--lr", "0.01", "--threads", "1",
                                      "--report", str(tmp_path / "report")])
     script.main()
     report = json.loads((tmp_path / "report.json").read_text())
-    assert report["samples"] == {"scenes": 4, "test_scenes": 2, "test_chain_starts": 2, "data_frames": 4}
-    assert set(report["median_and_p90_xy_error_cm"]["after"]["test_scenes"]) == {"all", "lift_block"}
-    assert set(report["median_and_p90_xy_error_cm"]["after"]["test_chain_starts"]) == {"all", "lift_block"}
+    assert report["samples"] == {"scenes": 4, "test_scenes": 2, "test_chain_starts": 2, "test_stacked_picks": 2,
+                                 "data_frames": 4}
+    for test in ("test_scenes", "test_chain_starts", "test_stacked_picks"):
+        assert set(report["median_and_p90_xy_error_cm"]["after"][test]) == {"all", "lift_block"}
+        assert set(report["median_z_error_cm"]["after"][test]) == {"all", "lift_block"}
     assert (tmp_path / "report.loss.png").stat().st_size > 0
     sets = list((tmp_path / "cache" / "trivla_drake" / "train" / "grounding_scenes").iterdir())
-    assert len(sets) == 3  # training (half chain starts), plain test, chain-start test
-    assert sorted(json.loads((f / "meta.json").read_text()).get("chain_starts", 0.0) for f in sets) == [0.0, 0.5, 1.0]
+    assert len(sets) == 4  # training (half chain starts, half stacked picks), plain, chain-start and stacked tests
+    metas = [json.loads((f / "meta.json").read_text()) for f in sets]
+    assert sorted((m.get("chain_starts", 0.0), m.get("stacked_picks", 0.0)) for m in metas) == [
+        (0.0, 0.0), (0.0, 1.0), (0.5, 0.5), (1.0, 0.0)]
+    stacked_test = next(f for f, m in zip(sets, metas) if m.get("stacked_picks") == 1.0)
+    assert gs.GroundingScenes(stacked_test).stacked_pick.all()  # both test scenes are lifts off a stack
     before, after = load_checkpoint(str(tmp_path / "in")).state_dict(), load_checkpoint(str(tmp_path / "out")).state_dict()
     readout = {f"policy.{name}" for name in refit.readout_parameters(model)}
     changed = {k for k in before if not torch.allclose(before[k].float(), after[k].float(), atol=1e-3)}
@@ -311,3 +347,60 @@ def test_the_true_subgoal_after_a_prelude_diagnostic_runs_the_grasp_tasks_after_
     assert configs[0].tasks == script.TASKS
     assert json.loads((tmp_path / "true_seed1002.json").read_text())["tasks"]["lift_block"]["successes"] == 1
     assert "1002" in capsys.readouterr().out
+
+
+def test_the_stacked_subgoal_diagnostic_replaces_only_its_axes_and_records_the_groundings_own_subgoal(
+        tmp_path, results_script):
+    from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
+    from trivla_drake.nn.checkpoint import save_checkpoint
+    from trivla_drake.nn.panda_tcp import denormalize_position
+
+    model = _grounded_model()
+    model = TriVLA(dataclasses.replace(model.config, policy=dataclasses.replace(
+        model.config.policy, subgoal_offset=True))).eval()
+    save_checkpoint(model, str(tmp_path / "model"))
+    script = results_script("stacked_subgoal/stacked_subgoal.py")
+    size = model.image_size
+    rng = np.random.default_rng(0)
+    observation = {"static_rgb": rng.integers(0, 255, (size, size, 3), dtype=np.uint8),
+                   "wrist_rgb": rng.integers(0, 255, (size, size, 3), dtype=np.uint8),
+                   "state": np.concatenate([HOME_ARM_Q, [0.04, 0.04], np.zeros(9)]).astype(np.float32)}
+    true = np.array([0.55, 0.12, 0.0725])
+
+    def chunk(axes):
+        """The chunk, the policy, and the sub-goal [m] System 1's offset path read."""
+        policy = script.StackedSubgoal.from_checkpoint(str(tmp_path / "model"))
+        policy.axes = axes
+        policy.reset("lift the red block", 3)
+        policy.true = true
+        read = []
+        policy.model.policy.subgoal_offset.register_forward_pre_hook(
+            lambda module, args: read.append(denormalize_position(args[0][0, :3].detach().float()).numpy()))
+        return TriVLAHarnessPolicy.act(policy, observation), policy, read[0]  # TrueSubgoal.act would read the scene
+
+    plain = TriVLAHarnessPolicy.from_checkpoint(str(tmp_path / "model"))
+    plain.reset("lift the red block", 3)
+    own, recorded, read = chunk(())
+    np.testing.assert_allclose(own, plain.act(observation), atol=1e-6)  # nothing replaced: the model's own
+    assert [r["episode"] for r in recorded.records] == [0] and recorded.records[0]["true"] == true.tolist()
+    predicted = np.array(recorded.records[0]["predicted"])
+    np.testing.assert_allclose(read, predicted, atol=1e-5)
+    np.testing.assert_allclose(chunk((0, 1, 2))[2], true, atol=1e-5)
+    _, height_only, read = chunk((2,))
+    np.testing.assert_allclose(read, [predicted[0], predicted[1], true[2]], atol=1e-5)
+    # Every mode records the grounding's own sub-goal, whatever System 1 is given.
+    np.testing.assert_allclose(height_only.records[0]["predicted"], predicted, atol=1e-6)
+    rows = [{"episode": 0, "predicted": [0.0, 0.0, 0.0], "true": [0.03, 0.04, 0.04]},
+            {"episode": 0, "predicted": [0.0, 0.0, 0.1], "true": [0.0, 0.0, 0.0]},
+            {"episode": 1, "predicted": [0.0, 0.0, 0.0], "true": [0.0, 0.0, 0.02]}]
+    summary = script.summarise(rows)
+    assert summary["first_chunk"]["chunks"] == 2 and summary["every_chunk"]["chunks"] == 3
+    assert summary["first_chunk"]["dz_median_cm"] == pytest.approx(-3.0)
+    assert summary["first_chunk"]["xy_median_cm"] == pytest.approx(2.5)
+    with pytest.raises(SystemExit, match="MODE must be one of"):
+        import sys
+        argv, sys.argv = sys.argv, ["stacked_subgoal.py", "x", "1000", str(tmp_path)]
+        try:
+            script.main()
+        finally:
+            sys.argv = argv

@@ -48,7 +48,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "CONTROL": "1", "PHASE_LONGER": "1", "CONTROL_LONGER": "1", "PHASE_RESEED": "1", "PHASE_THIRD": "1",
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
-           "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1",
+           "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -239,6 +239,14 @@ def step_57_start(argv_list: list[list[str]]) -> int:
     model come right before its first collect."""
     first_collect = next(i for i, a in enumerate(argv_list) if a[0] == "collect" and "data/sim-prelude-stacked" in a)
     return first_collect - 12
+
+
+def step_58_start(argv_list: list[list[str]]) -> int:
+    """The index of step 58's first call in `argv_list` (every_call or calls): its first evaluation with the
+    stackfit model comes after the refit, which only every_call holds, so this looks for its diagnostics or the
+    stackfit model's first evaluation, whichever comes first."""
+    return next(i for i, a in enumerate(argv_list) if a[:2] == ["python", "results/stacked_subgoal/stacked_subgoal.py"]
+                or (a[0] == "evaluate" and option(a, "--policy") == "runs/stackfit"))
 
 
 def _without(argv: list[str], *names: str) -> list[str]:
@@ -624,7 +632,7 @@ def test_step_57_follows_with_kept_statistics_on_a_prelude_mix_with_stacked_pick
         ("8", None, None, None), ("24", "4", None, None), ("44", None, "1", "lift_block,stack_block,place_in_bowl")]
     assert calls.index(collects[-1]) < calls.index(mix)
     for policy in ("models/trivla_cpu", "runs/prelude_stacked_export"):  # the shipped model rerun on this CPU too
-        evaluations = [a for a in calls[step_57_start(calls):] if a[0] == "evaluate"
+        evaluations = [a for a in calls[step_57_start(calls):step_58_start(calls)] if a[0] == "evaluate"
                        and option(a, "--policy") == policy]
         picks = [a for a in evaluations if "--stacked-picks" in a]
         assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
@@ -633,3 +641,28 @@ def test_step_57_follows_with_kept_statistics_on_a_prelude_mix_with_stacked_pick
                 and any(x.startswith("mix=") for x in a)]
     assert [a[3] for a in compares] == ["shipped=results/prelude_stacked_mix/shipped_stacked_picks",
                                         "shipped=results/prelude_stacked_mix/shipped"]
+
+
+def test_step_58_replaces_the_stacked_picks_sub_goal_then_refits_the_grounding_with_stacked_scenes(calls, every_call):
+    diagnostics = [a for a in every_call if a[:2] == ["python", "results/stacked_subgoal/stacked_subgoal.py"]]
+    assert [a[2:] for a in diagnostics] == [[mode, "1000,1001,1002,1003,1004,1005", "results/stacked_subgoal"]
+                                            for mode in ("z", "xyz")]
+    refits = [a for a in every_call if a[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    stackfit = next(a for a in refits if a[4] == "runs/stackfit")
+    shipped = next(a for a in refits if a[4] == "models/trivla_cpu")
+    assert stackfit[2:4] == ["models/trivla_cpu", "data/sim"] and refits.index(shipped) < refits.index(stackfit)
+    assert [option(stackfit, k) for k in ("--scenes", "--stacked-picks", "--steps", "--lr")] == [
+        "12000", "0.3", "1500", "3e-4"]
+    runs = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/stackfit"]
+    picks = [a for a in runs if "--stacked-picks" in a]
+    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in runs if a not in picks and option(a, "--chains") is None) == [
+        str(s) for s in range(1000, 1006)]
+    for policy in ("runs/stackfit", "models/trivla_cpu"):  # both models' chains run on one CPU kind
+        chains = [a for a in calls[step_58_start(calls):] if a[0] == "evaluate" and option(a, "--policy") == policy
+                  and option(a, "--chains") == "20"]
+        assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004"]
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("stackfit=") for x in a)]
+    assert [a[3] for a in compares] == ["shipped=results/chain_lifts/stacked_picks/shipped",
+                                        "shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"]

@@ -5,11 +5,14 @@ checkpoint). Writes OUT/ (the checkpoint), REPORT.json (errors per task, loss cu
 (REPORT: --report, default OUT).
 
 python results/grounding_scenes/refit_grounding.py CHECKPOINT DATA OUT [--scenes 12000] [--test-scenes 600]
-    [--chain-starts 0] [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]
+    [--chain-starts 0] [--stacked-picks 0] [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]
 
 With --chain-starts F, that fraction of the training scenes start where one or two earlier tasks of a chain left
 the scene and the arm (train/grounding_scenes.py), and the errors are also reported on 600 unseen scenes that all
-start so (`test_chain_starts`)."""
+start so (`test_chain_starts`). With --stacked-picks F, that fraction of the lift, place in bowl and stack scenes
+pick the top block of a stack (results/stacked_subgoal/), and the errors are also reported on 600 unseen scenes whose
+lift, place in bowl and stack all do (`test_stacked_picks`). Every test set also reports the sub-goal's median
+height error (`median_z_error_cm`, signed: sub-goal minus label)."""
 import argparse
 import json
 import time
@@ -36,9 +39,17 @@ def errors_by_task(model, samples):
     return {k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in rows.items()}
 
 
-def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0):
+def median_height_errors(model, samples):
+    """Median signed height error [cm] (sub-goal minus label), all samples and per task."""
+    dz = 100 * refit.subgoal_offsets(model, samples)[:, 2]
+    tasks = np.asarray(samples.tasks)
+    rows = {"all": dz} | {t: dz[tasks == t] for t in sorted(set(samples.tasks))}
+    return {k: round(float(np.median(v)), 3) for k, v in rows.items()}
+
+
+def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0, stacked_picks: float = 0.0):
     settings = gs.grounding_scene_settings(scenes=scenes, seed=seed, image_size=model.image_size,
-                                           chain_starts=chain_starts)
+                                           chain_starts=chain_starts, stacked_picks=stacked_picks)
     folder = Path(default_cache_dir()) / "grounding_scenes" / gs.grounding_scene_key(settings)
     return refit.scene_samples(model, gs.GroundingScenes(gs.ensure_grounding_scenes(folder, settings)))
 
@@ -52,6 +63,8 @@ def main() -> None:
     parser.add_argument("--test-scenes", type=int, default=600)
     parser.add_argument("--chain-starts", type=float, default=0.0,
                         help="fraction of the training scenes that start where a chain's earlier tasks left them")
+    parser.add_argument("--stacked-picks", type=float, default=0.0,
+                        help="fraction of the lift, place in bowl and stack scenes that pick the top block of a stack")
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--stride", type=int, default=3)
@@ -63,10 +76,12 @@ def main() -> None:
     if model.policy.grounding is None:
         raise SystemExit(f"{args.checkpoint} has no instruction grounding to re-fit")
     started = time.time()
-    scenes = rendered(model, args.scenes, TRAIN_SEED, args.chain_starts)
+    scenes = rendered(model, args.scenes, TRAIN_SEED, args.chain_starts, args.stacked_picks)
     tests = {"test_scenes": rendered(model, args.test_scenes, TEST_SEED)}
     if args.chain_starts > 0:
         tests["test_chain_starts"] = rendered(model, args.test_scenes, TEST_SEED, 1.0)
+    if args.stacked_picks > 0:
+        tests["test_stacked_picks"] = rendered(model, args.test_scenes, TEST_SEED, stacked_picks=1.0)
     scenes_s = time.time() - started
     frames = refit.dataset_samples(model, LeRobotReader(args.data), stride=args.stride,
                                    static_camera="observation.images.static", wrist_camera="observation.images.wrist")
@@ -75,17 +90,21 @@ def main() -> None:
         return {name: errors_by_task(model, samples) for name, samples in tests.items()} | {
             "data_frames": errors_by_task(model, frames)}
 
-    before = errors()
+    def heights():
+        return {name: median_height_errors(model, samples) for name, samples in tests.items()}
+
+    before, before_z = errors(), heights()
     print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
     curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr)
-    after = errors()
+    after, after_z = errors(), heights()
     print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)
     save_checkpoint(model, args.out, weights_dtype="float16")
     report = {"checkpoint": args.checkpoint, "data": args.data, "settings": vars(args),
               "samples": {"scenes": len(scenes), "data_frames": len(frames)} | {k: len(v) for k, v in tests.items()},
               "seconds": {"scenes_and_their_q_vl": round(scenes_s), "data_q_vl": round(prepare_s - scenes_s),
                           "refit": round(time.time() - started - prepare_s)},
-              "median_and_p90_xy_error_cm": {"before": before, "after": after}, "loss_ema": curve}
+              "median_and_p90_xy_error_cm": {"before": before, "after": after},
+              "median_z_error_cm": {"before": before_z, "after": after_z}, "loss_ema": curve}
     report_prefix = args.report or args.out
     Path(f"{report_prefix}.json").write_text(json.dumps(report, indent=1))
     import matplotlib

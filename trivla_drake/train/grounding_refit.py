@@ -131,16 +131,21 @@ def readout_parameters(model) -> dict[str, torch.nn.Parameter]:
 
 
 @torch.no_grad()
-def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
-    """x-y distance [m] (N,) of the grounding's sub-goal from each sample's label."""
+def subgoal_offsets(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
+    """The grounding's sub-goal minus each sample's label [m], (N, 3)."""
     model.eval()
-    errors = []
+    offsets = []
     for start in range(0, len(samples), batch_size):
         rows = torch.arange(start, min(start + batch_size, len(samples)))
         b = samples.batch(rows, samples.q_vl.shape[1])
         predicted = denormalize_position(model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"])[:, :3])
-        errors.append((predicted[:, :2] - b["subgoal_position"][:, :2]).norm(dim=-1))
-    return torch.cat(errors).numpy()
+        offsets.append(predicted - b["subgoal_position"])
+    return torch.cat(offsets).numpy()
+
+
+def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
+    """x-y distance [m] (N,) of the grounding's sub-goal from each sample's label."""
+    return np.linalg.norm(subgoal_offsets(model, samples, batch_size=batch_size)[:, :2], axis=1)
 
 
 def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, steps: int, lr: float,

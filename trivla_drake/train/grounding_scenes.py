@@ -22,11 +22,16 @@ switched, a block set in the bowl, on another or back on the table, pushed or tu
 the oracle leaves it), and the arm starts at the last prelude's final pose; the task's instance must
 still be possible there. Along the approach, the path then runs from that pose.
 
+Stacked picks (`stacked_picks`, a fraction of the lift, place in bowl and stack scenes; 0 by default): the scene
+starts with a stack and the block to pick up is its top one (`sample_task_instance(stacked_pick=True)`), as a
+chain may ask and the single-task scenes never do. Without them the shipped grounding puts such a block's
+sub-goal about 4 cm too low and 5 cm off in x-y (results/stacked_subgoal/).
+
 The set is written once to a folder (atomically: a temporary folder renamed into place):
     meta.json       settings and counts
     static.npy      uint8 (scenes, S, S, 3)       wrist.npy   uint8 (scenes, S, S, 3)
     scenes.parquet  task, instruction, state (18), subgoal_position (3) [m], subgoal_yaw (2), along_approach,
-                    chain_start
+                    chain_start, stacked_pick (in sets with stacked picks)
 """
 
 from __future__ import annotations
@@ -53,17 +58,21 @@ IK_TOLERANCE = 0.002  # [m]: a scene whose arm pose misses its approach point by
 FINGER_OPEN = 0.04  # each finger's position with the gripper open [m]
 
 
-def grounding_scene_settings(*, scenes: int, seed: int, image_size: int, chain_starts: float = 0.0) -> dict[str, Any]:
-    """What a set depends on (its folder's key). `chain_starts` enters only when above 0, so that the
-    sets made before it existed keep their keys."""
+def grounding_scene_settings(*, scenes: int, seed: int, image_size: int, chain_starts: float = 0.0,
+                             stacked_picks: float = 0.0) -> dict[str, Any]:
+    """What a set depends on (its folder's key). `chain_starts` and `stacked_picks` enter only when above 0, so
+    that the sets made before they existed keep their keys."""
     if scenes < 1:
         raise ValueError(f"scenes must be >= 1; got {scenes}")
-    if not 0.0 <= chain_starts <= 1.0:
-        raise ValueError(f"chain_starts must be a fraction in [0, 1]; got {chain_starts}")
+    for name, value in (("chain_starts", chain_starts), ("stacked_picks", stacked_picks)):
+        if not 0.0 <= value <= 1.0:
+            raise ValueError(f"{name} must be a fraction in [0, 1]; got {value}")
     settings = {"format": GROUNDING_SCENES_FORMAT, "scenes": int(scenes), "seed": int(seed),
                 "image_size": int(image_size), "tasks": list(GROUNDING_SCENE_TASKS)}
     if chain_starts > 0:
         settings["chain_starts"] = float(chain_starts)
+    if stacked_picks > 0:
+        settings["stacked_picks"] = float(stacked_picks)
     return settings
 
 
@@ -168,21 +177,26 @@ def _chain_start(task, instance, spec, layout, kinematics, rng):
     return spec, end
 
 
-def sample_grounding_scene(index: int, seed: int, layout, kinematics, chain_starts: float = 0.0) -> dict[str, Any]:
+def sample_grounding_scene(index: int, seed: int, layout, kinematics, chain_starts: float = 0.0,
+                           stacked_picks: float = 0.0) -> dict[str, Any]:
     """Scene `index` of a set: {"spec" (SceneSpec, the arm placed), "task", "instruction", "state" (18,),
-    "subgoal_position" (3,) [m], "subgoal_yaw" (2,), "along_approach", "chain_start"} (module doc)."""
+    "subgoal_position" (3,) [m], "subgoal_yaw" (2,), "along_approach", "chain_start", "stacked_pick"}
+    (module doc). A scene is a stacked pick or a chain start, never both."""
     from trivla_drake.action import GRIPPER_CLOSE
     from trivla_drake.robot.panda_ik import solve_ik
     from trivla_drake.tasks.scene import scene_from_spec, with_arm
-    from trivla_drake.tasks.suite import get_task, sample_task_instance
+    from trivla_drake.tasks.suite import STACKED_PICK_TASKS, get_task, sample_task_instance
 
     task = get_task(GROUNDING_SCENE_TASKS[(index // 2) % len(GROUNDING_SCENE_TASKS)])
     along = index % 2 == 1
     rng = np.random.default_rng([int(seed), int(index)])
     # Drawn only for sets with chain starts, so that the sets without them keep their scenes.
     chain = chain_starts > 0 and bool(rng.random() < chain_starts)
+    # Drawn from a generator of its own, so that the sets without stacked picks keep their scenes.
+    stacked = (stacked_picks > 0 and not chain and task.name in STACKED_PICK_TASKS
+               and bool(np.random.default_rng([int(seed), int(index), 1]).random() < stacked_picks))
     for _ in range(20):
-        spec, instance = sample_task_instance(task, rng, layout)
+        spec, instance = sample_task_instance(task, rng, layout, stacked_pick=stacked)
         start = None
         if chain:
             start = _chain_start(task, instance, spec, layout, kinematics, rng)
@@ -207,7 +221,7 @@ def sample_grounding_scene(index: int, seed: int, layout, kinematics, chain_star
             "spec": spec, "task": task.name, "instruction": instance.instruction, "along_approach": along,
             "state": np.concatenate([arm_q, [FINGER_OPEN, FINGER_OPEN], np.zeros(9)]).astype(np.float32),
             "subgoal_position": (plan[close].pose[:3, 3] + CLOSE_TRACKING_LAG).astype(np.float32),
-            "subgoal_yaw": quarter_turn_yaw(plan[close].pose), "chain_start": chain,
+            "subgoal_yaw": quarter_turn_yaw(plan[close].pose), "chain_start": chain, "stacked_pick": stacked,
         }
     raise RuntimeError(f"grounding scene {index}: no reachable {'chain start or ' if chain else ''}approach point in 20 draws")
 
@@ -227,11 +241,14 @@ def generate_grounding_scenes(folder: str | os.PathLike, settings: dict[str, Any
         layout = renderer.layout()
         static = np.lib.format.open_memmap(tmp / "static.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
         wrist = np.lib.format.open_memmap(tmp / "wrist.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
-        columns: dict[str, list] = {k: [] for k in ("task", "instruction", "state", "subgoal_position",
-                                                     "subgoal_yaw", "along_approach", "chain_start")}
+        keys = ["task", "instruction", "state", "subgoal_position", "subgoal_yaw", "along_approach", "chain_start"]
+        if "stacked_picks" in settings:  # the sets made before stacked picks keep their columns
+            keys.append("stacked_pick")
+        columns: dict[str, list] = {k: [] for k in keys}
         for i in tqdm(range(n), desc="rendering grounding scenes", unit="scene", disable=not progress):
             scene = sample_grounding_scene(i, int(settings["seed"]), layout, kinematics,
-                                           float(settings.get("chain_starts", 0.0)))
+                                           float(settings.get("chain_starts", 0.0)),
+                                           float(settings.get("stacked_picks", 0.0)))
             static[i], wrist[i], _ = renderer.render(scene["spec"])
             for key in columns:
                 value = scene[key]
@@ -269,6 +286,7 @@ class GroundingScenes:
         self.along_approach = np.asarray(table["along_approach"], dtype=bool)
         # Sets rendered before chain starts existed have no such column: none of their scenes is one.
         self.chain_start = np.asarray(table.get("chain_start", [False] * len(self.along_approach)), dtype=bool)
+        self.stacked_pick = np.asarray(table.get("stacked_pick", [False] * len(self.along_approach)), dtype=bool)
         self.state = np.asarray(table["state"], dtype=np.float32)
         self.subgoal_position = np.asarray(table["subgoal_position"], dtype=np.float32)
         self.subgoal_yaw = np.asarray(table["subgoal_yaw"], dtype=np.float32)
