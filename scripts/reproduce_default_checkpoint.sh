@@ -1141,13 +1141,13 @@ if [[ "${PRELUDE_STACKED:-0}" == 1 ]]; then
       shipped="$PS/shipped" refit=results/stacked_pick_demos/stackedfollow kept=results/kept_normalization/keepnorm \
       mix="$PS/mix" > "$PS/compare.md"
 fi
-# 58. Optional (STACKED_REFIT=1; results/stacked_subgoal/, session 55; about 1.5 h): why a block on top of another is
+# 58. Optional (STACKED_REFIT=1; results/stacked_subgoal/, session 55; about 2 h): why a block on top of another is
 #     almost never picked up. The shipped model on lift, place in bowl and stack with `--stacked-picks`, the sub-goal
 #     System 1's offset path reads replaced by the oracle's grasp position in height only (`z`) and in all three axes
 #     (`xyz`), recording where the grounding itself puts it; then the shipped grounding's read-out re-fitted (as step
 #     46, going on from the shipped model) on 12000 rendered scenes 30% of whose lift, place and stack scenes pick the
 #     top block of a stack, with DATA's grounding frames; its stacked picks and usual scenes on seeds 1000-1005, and
-#     40 chains of it and of the shipped model, both run on the same CPU kind.
+#     80 chains of it and of the shipped model, both run on the same CPU kind.
 if [[ "${STACKED_REFIT:-0}" == 1 ]]; then
   SS=results/stacked_subgoal
   mkdir -p "$SS"
@@ -1158,11 +1158,16 @@ if [[ "${STACKED_REFIT:-0}" == 1 ]]; then
       --scenes 12000 --stacked-picks 0.3 --steps 1500 --lr 3e-4 --report "$SS/stackfit_refit"
   stacked_six_seeds "$RUNS/stackfit" "$SS/stackfit_stacked_picks"
   six_seeds "$RUNS/stackfit" "$SS/stackfit"
-  forty_chains "$RUNS/stackfit" "$SS/stackfit"
-  forty_chains models/trivla_cpu "$SS/shipped"
+  for seed in 1003 1004 1005 1006; do  # 80 chains of each, both run on one CPU kind so that they pair chain by chain
+    for model in stackfit shipped; do
+      policy=$([[ $model == stackfit ]] && echo "$RUNS/stackfit" || echo models/trivla_cpu)
+      trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+          --json > "$SS/${model}_chains20_seed$seed.json"
+    done
+  done
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SS/stacked_picks.png" \
       shipped=results/chain_lifts/stacked_picks/shipped z="$SS/z" xyz="$SS/xyz" stackfit="$SS/stackfit_stacked_picks" \
       > "$SS/stacked_picks.md"
-  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SS/compare.png" \
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$SS/compare.png" \
       shipped="results/prelude_stacked_mix/shipped+$SS/shipped" stackfit="$SS/stackfit" > "$SS/compare.md"
 fi

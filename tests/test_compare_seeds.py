@@ -63,9 +63,9 @@ def test_arguments_without_a_label_print_the_usage(tmp_path, script):
         script.main([str(tmp_path / "x.png"), str(tmp_path / "a")])
 
 
-def _write_chains(prefix: Path, stopped: dict[int, dict[int, int]]) -> None:
+def _write_chains(prefix: Path, stopped: dict[int, dict[int, int]], seeds=(1003, 1004)) -> None:
     """Two chains per evaluation seed (chain seeds 1 and 2), five tasks each; `stopped[seed][chain]` = tasks done."""
-    for seed in (1003, 1004):
+    for seed in seeds:
         failures = [{"seed": chain, "completed": done} for chain, done in stopped.get(seed, {}).items()]
         Path(f"{prefix}_chains20_seed{seed}.json").write_text(json.dumps(
             {"chains": {"count": 2, "completed_at_least": [0.0] * 5, "failures": failures}}))
@@ -112,3 +112,20 @@ def test_a_model_can_join_seeds_from_several_prefixes(tmp_path, capsys, script):
     assert row[1:3] == ["18", "18"]  # 6 x 1 from the old seeds, 6 x 2 from the fresh ones
     with pytest.raises(SystemExit, match=r"old_seed1012.json or .*fresh_seed1012.json: no such evaluation"):
         script.main(["--seeds", "1000-1012", str(tmp_path / "x.png"), f"joined={tmp_path / 'old'}+{tmp_path / 'fresh'}"])
+
+
+def test_chain_seeds_reads_other_chain_files_and_a_bad_range_names_the_option(tmp_path, capsys, script):
+    for name in ("a", "b"):
+        _write_model(tmp_path / name, [{"lift_block": 1}] * 6)
+    _write_chains(tmp_path / "a", {1003: {1: 0}, 1005: {1: 0, 2: 0}}, seeds=(1003, 1004, 1005, 1006))
+    _write_chains(tmp_path / "b", {1003: {1: 1}, 1005: {1: 4, 2: 4}}, seeds=(1003, 1004, 1005, 1006))
+    script.main(["--chain-seeds", "1003-1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}"])
+    out = capsys.readouterr().out
+    assert "Avg. Len, 8 chains (seeds 1003, 1004, 1005, 1006)" in out
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in out.splitlines()
+            if line.startswith("| a |") or line.startswith("| b |")}
+    # a: 0, 0, 0 and five chains of 5 (mean 25/8); b: 1, 4, 4 and five of 5 (mean 34/8); differences 1, 4, 4
+    assert rows["a"][-2].startswith("3.125") and rows["b"][-2].startswith("4.250")
+    assert rows["b"][-1].startswith("+1.125")
+    with pytest.raises(SystemExit, match="--chain-seeds: expected FIRST-LAST"):
+        script.main(["--chain-seeds", "1006", str(tmp_path / "x.png"), f"a={tmp_path / 'a'}"])

@@ -661,8 +661,10 @@ def test_step_58_replaces_the_stacked_picks_sub_goal_then_refits_the_grounding_w
     for policy in ("runs/stackfit", "models/trivla_cpu"):  # both models' chains run on one CPU kind
         chains = [a for a in calls[step_58_start(calls):] if a[0] == "evaluate" and option(a, "--policy") == policy
                   and option(a, "--chains") == "20"]
-        assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004"]
+        assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004", "1005", "1006"]
     compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
                 and any(x.startswith("stackfit=") for x in a)]
-    assert [a[3] for a in compares] == ["shipped=results/chain_lifts/stacked_picks/shipped",
-                                        "shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"]
+    assert [a[2:4] for a in compares] == [
+        ["results/stacked_subgoal/stacked_picks.png", "shipped=results/chain_lifts/stacked_picks/shipped"],
+        ["--chain-seeds", "1003-1006"]]
+    assert compares[1][5] == "shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"

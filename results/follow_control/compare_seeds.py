@@ -1,6 +1,7 @@
 """Compare models evaluated on the same seeds (`evaluate --episodes 2 --seed S --json`, one file per seed).
 
-    python results/follow_control/compare_seeds.py [--seeds FIRST-LAST] OUT.png LABEL=PREFIX [LABEL=PREFIX ...]
+    python results/follow_control/compare_seeds.py [--seeds FIRST-LAST] [--chain-seeds FIRST-LAST] OUT.png
+        LABEL=PREFIX [LABEL=PREFIX ...]
 
 reads PREFIX_seed1000.json ... PREFIX_seed1005.json (or FIRST ... LAST) for each model (PREFIX may be several,
 joined by "+", where a model's seeds were evaluated into different folders: each seed's file is taken from the
@@ -11,7 +12,7 @@ difference (paired by seed, since each seed's scenes are the same for every mode
 that split. It draws the per-task successes as grouped bars into OUT.png. Models that also have
 PREFIX_chains20_seed1003.json and ..._seed1004.json (`evaluate --episodes 0 --chains 20`) get a second table: Avg.
 Len over those 40 chains, and each model's difference to the first such model paired chain by chain (the chains of
-a seed are the same for every model).
+a seed are the same for every model); `--chain-seeds 1003-1006` reads those four seeds' chains (80) instead.
 """
 
 import json
@@ -63,13 +64,14 @@ def stderr(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / np.sqrt(len(values)))
 
 
-def load_chains(prefix: str) -> tuple[dict[tuple[int, int], int], int, int] | None:
+def load_chains(prefix: str, chain_seeds: tuple[int, ...] = CHAIN_SEEDS
+                ) -> tuple[dict[tuple[int, int], int], int, int] | None:
     """Tasks completed by each chain that stopped early, keyed by (evaluation seed, chain seed); the number of
     chains; and a chain's length (from the first of the "+"-joined prefixes with a file). None where the chain
     files are missing."""
     stopped: dict[tuple[int, int], int] = {}
     count = 0
-    for seed in CHAIN_SEEDS:
+    for seed in chain_seeds:
         path, _ = first_file(prefix, f"_chains20_seed{seed}.json")
         if path is None:
             return None
@@ -92,20 +94,24 @@ def chain_lengths(models: dict[str, tuple[dict, int, int]]) -> dict[str, np.ndar
             for label, (stopped, _, _) in models.items()}
 
 
-def parse_seeds(text: str) -> tuple[int, ...]:
+def parse_seeds(text: str, option: str = "--seeds") -> tuple[int, ...]:
     """`FIRST-LAST` -> (FIRST, ..., LAST)."""
     first, _, last = text.partition("-")
     if not (first.isdigit() and last.isdigit() and int(first) <= int(last)):
-        raise SystemExit(f"--seeds: expected FIRST-LAST (e.g. 1006-1011), got {text!r}")
+        raise SystemExit(f"{option}: expected FIRST-LAST (e.g. 1006-1011), got {text!r}")
     return tuple(range(int(first), int(last) + 1))
 
 
 def main(argv: list[str]) -> None:
-    seeds = SEEDS
-    if argv[:1] == ["--seeds"]:
+    seeds, chain_seeds = SEEDS, CHAIN_SEEDS
+    while argv[:1] in (["--seeds"], ["--chain-seeds"]):
         if len(argv) < 2:
             raise SystemExit(__doc__)
-        seeds, argv = parse_seeds(argv[1]), argv[2:]
+        if argv[0] == "--seeds":
+            seeds = parse_seeds(argv[1])
+        else:
+            chain_seeds = parse_seeds(argv[1], "--chain-seeds")
+        argv = argv[2:]
     if len(argv) < 2 or any("=" not in arg for arg in argv[1:]):
         raise SystemExit(__doc__)
     out, models = Path(argv[0]), [arg.split("=", 1) for arg in argv[1:]]
@@ -123,11 +129,12 @@ def main(argv: list[str]) -> None:
         print(f"| {label} | " + " | ".join(str(per_task[t]) for t in tasks) +
               f" | {sum(per_task.values())} | {averages.mean():.3f} ± {stderr(averages):.3f} | {paired} | {flips} |")
 
-    chains = {label: loaded_chains for label, prefix in models if (loaded_chains := load_chains(prefix)) is not None}
+    chains = {label: loaded_chains for label, prefix in models
+              if (loaded_chains := load_chains(prefix, chain_seeds)) is not None}
     if chains:
         lengths = chain_lengths(chains)
         reference = next(iter(lengths.values()))
-        print(f"\n| model | Avg. Len, {len(reference)} chains (seeds {', '.join(map(str, CHAIN_SEEDS))}) | "
+        print(f"\n| model | Avg. Len, {len(reference)} chains (seeds {', '.join(map(str, chain_seeds))}) | "
               "paired by chain to the first |\n| --- | --- | --- |")
         for i, (label, values) in enumerate(lengths.items()):
             paired = "-" if i == 0 else f"{(values - reference).mean():+.3f} ± {stderr(values - reference):.3f}"
