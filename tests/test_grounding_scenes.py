@@ -350,7 +350,7 @@ def test_the_true_subgoal_after_a_prelude_diagnostic_runs_the_grasp_tasks_after_
 
 
 def test_the_stacked_subgoal_diagnostic_replaces_only_its_axes_and_records_the_groundings_own_subgoal(
-        tmp_path, results_script):
+        tmp_path, monkeypatch, results_script):
     from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
     from trivla_drake.nn.checkpoint import save_checkpoint
     from trivla_drake.nn.panda_tcp import denormalize_position
@@ -397,10 +397,6 @@ def test_the_stacked_subgoal_diagnostic_replaces_only_its_axes_and_records_the_g
     assert summary["first_chunk"]["chunks"] == 2 and summary["every_chunk"]["chunks"] == 3
     assert summary["first_chunk"]["dz_median_cm"] == pytest.approx(-3.0)
     assert summary["first_chunk"]["xy_median_cm"] == pytest.approx(2.5)
+    monkeypatch.setattr("sys.argv", ["stacked_subgoal.py", "x", "1000", str(tmp_path)])
     with pytest.raises(SystemExit, match="MODE must be one of"):
-        import sys
-        argv, sys.argv = sys.argv, ["stacked_subgoal.py", "x", "1000", str(tmp_path)]
-        try:
-            script.main()
-        finally:
-            sys.argv = argv
+        script.main()

@@ -31,20 +31,20 @@ from trivla_drake.train.config import default_cache_dir
 TRAIN_SEED, TEST_SEED = 0, 1  # the unseen test scenes are drawn with another seed
 
 
-def errors_by_task(model, samples):
-    """Median and 90th percentile x-y error [cm], all samples and per task."""
-    error = 100 * refit.subgoal_errors(model, samples)
+def by_task(values: np.ndarray, samples) -> dict[str, np.ndarray]:
+    """`values` (one per sample) for all samples and for each task's."""
     tasks = np.asarray(samples.tasks)
-    rows = {"all": error} | {t: error[tasks == t] for t in sorted(set(samples.tasks))}
-    return {k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in rows.items()}
+    return {"all": values} | {t: values[tasks == t] for t in sorted(set(samples.tasks))}
 
 
-def median_height_errors(model, samples):
-    """Median signed height error [cm] (sub-goal minus label), all samples and per task."""
-    dz = 100 * refit.subgoal_offsets(model, samples)[:, 2]
-    tasks = np.asarray(samples.tasks)
-    rows = {"all": dz} | {t: dz[tasks == t] for t in sorted(set(samples.tasks))}
-    return {k: round(float(np.median(v)), 3) for k, v in rows.items()}
+def error_summaries(model, samples) -> tuple[dict, dict]:
+    """The sub-goal's median and 90th percentile x-y error [cm], and its median signed height error [cm] (sub-goal
+    minus label), all samples and per task, from one pass of the grounding over `samples`."""
+    offsets = 100 * refit.subgoal_offsets(model, samples)
+    xy = by_task(np.linalg.norm(offsets[:, :2], axis=1), samples)
+    z = by_task(offsets[:, 2], samples)
+    return ({k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in xy.items()},
+            {k: round(float(np.median(v)), 3) for k, v in z.items()})
 
 
 def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0, stacked_picks: float = 0.0):
@@ -87,16 +87,15 @@ def main() -> None:
                                    static_camera="observation.images.static", wrist_camera="observation.images.wrist")
     prepare_s = time.time() - started
     def errors():
-        return {name: errors_by_task(model, samples) for name, samples in tests.items()} | {
-            "data_frames": errors_by_task(model, frames)}
+        """x-y errors of the test sets and the data frames; height errors of the test sets."""
+        summaries = {name: error_summaries(model, samples) for name, samples in tests.items()}
+        xy = {name: xy for name, (xy, _) in summaries.items()} | {"data_frames": error_summaries(model, frames)[0]}
+        return xy, {name: z for name, (_, z) in summaries.items()}
 
-    def heights():
-        return {name: median_height_errors(model, samples) for name, samples in tests.items()}
-
-    before, before_z = errors(), heights()
+    before, before_z = errors()
     print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
     curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr)
-    after, after_z = errors(), heights()
+    after, after_z = errors()
     print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)
     save_checkpoint(model, args.out, weights_dtype="float16")
     report = {"checkpoint": args.checkpoint, "data": args.data, "settings": vars(args),

@@ -72,8 +72,8 @@ class StackedSubgoal(TrueSubgoal):
 
 
 def summarise(records: list[dict]) -> dict:
-    """Median and 90th percentile of the grounding's sub-goal error (predicted - oracle) [cm], in height and x-y,
-    over every chunk planned with no block held, and over each episode's first such chunk."""
+    """The grounding's sub-goal error (predicted - oracle) [cm]: the height's median and 10th / 90th percentiles and
+    the x-y distance's median, over every chunk planned with no block held and over each episode's first such chunk."""
     def stats(rows):
         if not rows:
             return {}
