@@ -221,7 +221,7 @@ def test_the_refit_trains_the_grounding_readout_alone_and_lowers_its_loss():
         rendered = SimpleNamespace(  # what scene_samples reads of a GroundingScenes
             folder="memory", static=views[0], wrist=views[1], instructions=[words] * n, tasks=["lift_block"] * n,
             state=state, subgoal_position=(np.array([0.5, 0.0, 0.03]) + 0.05 * rng.normal(size=(n, 3))).astype(np.float32),
-            subgoal_yaw=np.zeros((n, 2), dtype=np.float32))
+            subgoal_yaw=np.zeros((n, 2), dtype=np.float32), stacked_pick=np.zeros(n, dtype=bool))
         return refit.scene_samples(model, rendered, progress=False)
 
     scenes, frames = samples(24, "lift the red block"), samples(16, "put the blue block in the bowl please")
@@ -239,6 +239,72 @@ def test_the_refit_trains_the_grounding_readout_alone_and_lowers_its_loss():
     assert not any(p.requires_grad for p in model.parameters())
     with pytest.raises(ValueError, match="scene_share must be in"):
         refit.refit_readout(model, scenes, frames, steps=1, lr=1e-3, scene_share=1.0)
+
+
+def _stacked_and_plain_samples(model, n: int = 24) -> tuple:
+    """Scenes half of which (the first half) pick a stacked block, labelled 9 cm higher, and frames."""
+    rng = np.random.default_rng(1)
+
+    def samples(count, words, stacked):
+        state = np.zeros((count, 18), dtype=np.float32)
+        state[:, :7], state[:, 7:9] = HOME_ARM_Q, gs.FINGER_OPEN
+        views = rng.integers(0, 255, size=(2, count, model.image_size, model.image_size, 3), dtype=np.uint8)
+        position = np.array([0.5, 0.0, 0.03]) + 0.03 * rng.normal(size=(count, 3)) + 0.09 * stacked[:, None] * [0, 0, 1]
+        return refit.scene_samples(model, SimpleNamespace(
+            folder="memory", static=views[0], wrist=views[1], instructions=[words] * count, tasks=["lift_block"] * count,
+            state=state, subgoal_position=position.astype(np.float32), subgoal_yaw=np.zeros((count, 2), np.float32),
+            stacked_pick=stacked), progress=False)
+
+    return (samples(n, "lift the red block", np.arange(n) < n // 2),
+            samples(12, "put the blue block in the bowl please", np.zeros(12, dtype=bool)))
+
+
+def test_stacked_share_draws_that_part_of_the_scenes_from_the_stacked_picks():
+    model = _grounded_model()
+    scenes, frames = _stacked_and_plain_samples(model)
+    assert scenes.stacked.sum() == 12 and frames.stacked_rows().sum() == 0
+    rows = refit._scene_rows(scenes, 8, 0.75, torch.Generator().manual_seed(0))
+    assert scenes.stacked[rows].tolist() == [True] * 6 + [False] * 2
+    for share in (0.0, 1.0):
+        with pytest.raises(ValueError, match="stacked_share must be in"):
+            refit.refit_readout(model, scenes, frames, steps=1, lr=1e-3, stacked_share=share)
+    with pytest.raises(ValueError, match="0 of the 12 scenes do"):
+        refit.refit_readout(model, frames, frames, steps=1, lr=1e-3, stacked_share=0.5)
+    with pytest.raises(ValueError, match="hold_weight must be >= 0"):
+        refit.refit_readout(model, scenes, frames, steps=1, lr=1e-3, hold_weight=-1.0)
+
+
+def test_hold_keeps_the_answers_of_samples_that_pick_no_stacked_block_closer_to_where_they_were():
+    moved = {}
+    for hold in (0.0, 20.0):
+        model = _grounded_model()
+        scenes, frames = _stacked_and_plain_samples(model)
+        before = refit.raw_subgoals(model, scenes)
+        refit.refit_readout(model, scenes, frames, steps=40, lr=3e-3, batch_size=8, stacked_share=0.5,
+                            hold_weight=hold, progress=False)
+        change = (refit.raw_subgoals(model, scenes) - before).norm(dim=1)
+        moved[hold] = (float(change[~scenes.stacked].mean()), float(change[scenes.stacked].mean()))
+        assert not any(p.requires_grad for p in model.parameters())
+    assert moved[20.0][0] < 0.5 * moved[0.0][0]  # the table scenes stay nearer their old answers...
+    assert moved[20.0][1] > moved[20.0][0]  # ...while the stacked picks still move
+
+
+def test_saved_samples_load_back_and_a_broken_file_is_named(tmp_path):
+    model = _grounded_model()
+    scenes, _ = _stacked_and_plain_samples(model, n=4)
+    refit.save_samples(scenes, tmp_path / "q" / "scenes.pt")
+    assert [p.name for p in (tmp_path / "q").iterdir()] == ["scenes.pt"]  # no partial file left
+    loaded = refit.load_samples(tmp_path / "q" / "scenes.pt")
+    for name in ("q_vl", "q_vl_mask", "state", "subgoal_position", "subgoal_yaw", "stacked"):
+        assert torch.equal(getattr(loaded, name), getattr(scenes, name)), name
+    assert loaded.tasks == scenes.tasks
+    data = (tmp_path / "q" / "scenes.pt").read_bytes()
+    (tmp_path / "q" / "scenes.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="scenes.pt holds no saved grounding samples"):
+        refit.load_samples(tmp_path / "q" / "scenes.pt")
+    torch.save({"format": 7}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="other.pt holds no saved grounding samples of format 1"):
+        refit.load_samples(tmp_path / "other.pt")
 
 
 def test_dataset_samples_are_the_grounding_frames_with_their_labels(tmp_path):
@@ -266,7 +332,7 @@ def test_dataset_samples_are_the_grounding_frames_with_their_labels(tmp_path):
 
 
 def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_reports_its_errors(
-        tmp_path, monkeypatch, results_script):
+        tmp_path, monkeypatch, results_script, capsys):
     from trivla_drake.nn import load_checkpoint
     from trivla_drake.nn.checkpoint import save_checkpoint
     from trivla_drake.nn.normalization import NormalizationStats
@@ -281,9 +347,10 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     script = results_script("grounding_scenes/refit_grounding.py")
     monkeypatch.setattr("sys.argv", ["refit_grounding.py", str(tmp_path / "in"), data, str(tmp_path / "out"),
                                      "--scenes", "4", "--test-scenes", "2", "--chain-starts", "0.5", "--stacked-picks", "0.5",
-                                     "--steps", "3", "--lr", "0.01", "--threads", "1",
+                                     "--steps", "3", "--lr", "0.01", "--threads", "1", "--hold", "0.5",
                                      "--report", str(tmp_path / "report")])
     script.main()
+    assert "Q_vl of" not in capsys.readouterr().out
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["samples"] == {"scenes": 4, "test_scenes": 2, "test_chain_starts": 2, "test_stacked_picks": 2,
                                  "data_frames": 4}
@@ -302,6 +369,12 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     readout = {f"policy.{name}" for name in refit.readout_parameters(model)}
     changed = {k for k in before if not torch.allclose(before[k].float(), after[k].float(), atol=1e-3)}
     assert changed and changed <= readout
+    # Q_vl of the five sets (training, three tests, the data's frames) was kept; a second run reads it back.
+    assert len(list((tmp_path / "cache" / "trivla_drake" / "train" / "grounding_q_vl").glob("*.pt"))) == 5
+    script.main()
+    assert capsys.readouterr().out.count("Q_vl of") == 5
+    again = json.loads((tmp_path / "report.json").read_text())
+    assert again["median_and_p90_xy_error_cm"]["before"] == report["median_and_p90_xy_error_cm"]["before"]
 
 
 def test_the_occlusion_script_bins_each_models_errors_by_how_much_of_the_block_the_static_camera_sees(

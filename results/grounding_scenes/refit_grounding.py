@@ -5,15 +5,23 @@ checkpoint). Writes OUT/ (the checkpoint), REPORT.json (errors per task, loss cu
 (REPORT: --report, default OUT).
 
 python results/grounding_scenes/refit_grounding.py CHECKPOINT DATA OUT [--scenes 12000] [--test-scenes 600]
-    [--chain-starts 0] [--stacked-picks 0] [--steps 1500] [--lr 3e-4] [--stride 3] [--threads 2] [--report PREFIX]
+    [--chain-starts 0] [--stacked-picks 0] [--stacked-share F] [--hold W] [--steps 1500] [--lr 3e-4] [--stride 3]
+    [--threads 2] [--report PREFIX] [--no-q-vl-cache]
 
 With --chain-starts F, that fraction of the training scenes start where one or two earlier tasks of a chain left
 the scene and the arm (train/grounding_scenes.py), and the errors are also reported on 600 unseen scenes that all
 start so (`test_chain_starts`). With --stacked-picks F, that fraction of the lift, place in bowl and stack scenes
 pick the top block of a stack (results/stacked_subgoal/), and the errors are also reported on 600 unseen scenes whose
 lift, place in bowl and stack all do (`test_stacked_picks`). Every test set also reports the sub-goal's median
-height error (`median_z_error_cm`, signed: sub-goal minus label)."""
+height error (`median_z_error_cm`, signed: sub-goal minus label). --stacked-share F draws that fraction of each
+batch's scenes from the stacked picks, and --hold W pulls every other sample toward the sub-goal the read-out gave it
+before (grounding_refit.refit_readout; results/stacked_hold/).
+
+System 2's Q_vl of every set is computed once per checkpoint and kept in the cache folder
+(train/config.default_cache_dir()/grounding_q_vl, keyed by the checkpoint's files and the set), so a second re-fit of
+the same checkpoint starts training at once; --no-q-vl-cache computes them anew and keeps nothing."""
 import argparse
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -47,11 +55,37 @@ def error_summaries(model, samples) -> tuple[dict, dict]:
             {k: round(float(np.median(v)), 3) for k, v in z.items()})
 
 
-def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0, stacked_picks: float = 0.0):
+def files_digest(folder: Path, pattern: str) -> str:
+    """sha256 of the names and bytes of `folder`'s files matching `pattern`."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(folder).glob(pattern)):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def q_vl_cached(checkpoint_digest: str | None, what: str, compute):
+    """`compute()`'s samples, kept under the cache folder by `what` and the checkpoint's digest (None: no cache)."""
+    if checkpoint_digest is None:
+        return compute()
+    key = hashlib.sha256(f"{checkpoint_digest}/{what}".encode()).hexdigest()[:16]
+    path = Path(default_cache_dir()) / "grounding_q_vl" / f"{key}.pt"
+    if path.is_file():
+        print(f"Q_vl of {what} from {path}", flush=True)
+        return refit.load_samples(path)
+    samples = compute()
+    refit.save_samples(samples, path)
+    return samples
+
+
+def rendered(model, scenes: int, seed: int, chain_starts: float = 0.0, stacked_picks: float = 0.0,
+             checkpoint_digest: str | None = None):
     settings = gs.grounding_scene_settings(scenes=scenes, seed=seed, image_size=model.image_size,
                                            chain_starts=chain_starts, stacked_picks=stacked_picks)
-    folder = Path(default_cache_dir()) / "grounding_scenes" / gs.grounding_scene_key(settings)
-    return refit.scene_samples(model, gs.GroundingScenes(gs.ensure_grounding_scenes(folder, settings)))
+    key = gs.grounding_scene_key(settings)
+    folder = Path(default_cache_dir()) / "grounding_scenes" / key
+    return q_vl_cached(checkpoint_digest, f"scenes {key}", lambda: refit.scene_samples(
+        model, gs.GroundingScenes(gs.ensure_grounding_scenes(folder, settings))))
 
 
 def main() -> None:
@@ -65,6 +99,11 @@ def main() -> None:
                         help="fraction of the training scenes that start where a chain's earlier tasks left them")
     parser.add_argument("--stacked-picks", type=float, default=0.0,
                         help="fraction of the lift, place in bowl and stack scenes that pick the top block of a stack")
+    parser.add_argument("--stacked-share", type=float, default=None,
+                        help="fraction of each batch's scenes drawn from the stacked picks (default: uniform)")
+    parser.add_argument("--hold", type=float, default=0.0,
+                        help="weight pulling every sample that picks no stacked block toward its sub-goal before")
+    parser.add_argument("--no-q-vl-cache", action="store_true", help="compute System 2's Q_vl anew, keep nothing")
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--stride", type=int, default=3)
@@ -76,15 +115,19 @@ def main() -> None:
     if model.policy.grounding is None:
         raise SystemExit(f"{args.checkpoint} has no instruction grounding to re-fit")
     started = time.time()
-    scenes = rendered(model, args.scenes, TRAIN_SEED, args.chain_starts, args.stacked_picks)
-    tests = {"test_scenes": rendered(model, args.test_scenes, TEST_SEED)}
+    digest = None if args.no_q_vl_cache else files_digest(Path(args.checkpoint), "*")
+    scenes = rendered(model, args.scenes, TRAIN_SEED, args.chain_starts, args.stacked_picks, digest)
+    tests = {"test_scenes": rendered(model, args.test_scenes, TEST_SEED, checkpoint_digest=digest)}
     if args.chain_starts > 0:
-        tests["test_chain_starts"] = rendered(model, args.test_scenes, TEST_SEED, 1.0)
+        tests["test_chain_starts"] = rendered(model, args.test_scenes, TEST_SEED, 1.0, checkpoint_digest=digest)
     if args.stacked_picks > 0:
-        tests["test_stacked_picks"] = rendered(model, args.test_scenes, TEST_SEED, stacked_picks=1.0)
+        tests["test_stacked_picks"] = rendered(model, args.test_scenes, TEST_SEED, stacked_picks=1.0,
+                                               checkpoint_digest=digest)
     scenes_s = time.time() - started
-    frames = refit.dataset_samples(model, LeRobotReader(args.data), stride=args.stride,
-                                   static_camera="observation.images.static", wrist_camera="observation.images.wrist")
+    data_key = f"frames {files_digest(Path(args.data) / 'meta', '*.json')} stride {args.stride}"
+    frames = q_vl_cached(digest, data_key, lambda: refit.dataset_samples(
+        model, LeRobotReader(args.data), stride=args.stride,
+        static_camera="observation.images.static", wrist_camera="observation.images.wrist"))
     prepare_s = time.time() - started
     def errors():
         """x-y errors of the test sets and the data frames; height errors of the test sets."""
@@ -94,7 +137,8 @@ def main() -> None:
 
     before, before_z = errors()
     print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
-    curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr)
+    curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr,
+                                stacked_share=args.stacked_share, hold_weight=args.hold)
     after, after_z = errors()
     print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)
     save_checkpoint(model, args.out, weights_dtype="float16")

@@ -24,7 +24,8 @@ GROUNDING_CARRY_TASKS = ("stack_block", "place_in_bowl", "unstack_block", "rotat
 @dataclass
 class GroundingSamples:
     """Precomputed grounding inputs and labels: Q_vl float16 (N, S, D) right-padded with its mask (N, S),
-    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), each sample's task."""
+    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), each sample's task, and which
+    samples pick the top block of a stack (N,) bool (None: none does)."""
 
     q_vl: torch.Tensor
     q_vl_mask: torch.Tensor
@@ -32,18 +33,23 @@ class GroundingSamples:
     subgoal_position: torch.Tensor
     subgoal_yaw: torch.Tensor
     tasks: list[str]
+    stacked: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.tasks)
 
+    def stacked_rows(self) -> torch.Tensor:
+        """Which samples pick the top block of a stack (N,) bool."""
+        return torch.zeros(len(self), dtype=torch.bool) if self.stacked is None else self.stacked
+
     def batch(self, rows: torch.Tensor, length: int) -> dict[str, torch.Tensor]:
-        """`compute_grounding_loss`'s batch of `rows`, Q_vl padded to `length` tokens."""
+        """`compute_grounding_loss`'s batch of `rows`, Q_vl padded to `length` tokens, with "stacked" (B,) bool."""
         pad = length - self.q_vl.shape[1]
         return {
             "q_vl": torch.nn.functional.pad(self.q_vl[rows].float(), (0, 0, 0, pad)),
             "q_vl_mask": torch.nn.functional.pad(self.q_vl_mask[rows], (0, pad)),
             "state": self.state[rows], "subgoal_position": self.subgoal_position[rows],
-            "subgoal_yaw": self.subgoal_yaw[rows],
+            "subgoal_yaw": self.subgoal_yaw[rows], "stacked": self.stacked_rows()[rows],
         }
 
 
@@ -84,7 +90,7 @@ def scene_samples(model, scenes, *, batch_size: int = 32, progress: bool = True)
     q_vl, mask = _padded(sequences)
     return GroundingSamples(q_vl, mask, torch.from_numpy(scenes.state.copy()),
                             torch.from_numpy(scenes.subgoal_position.copy()), torch.from_numpy(scenes.subgoal_yaw.copy()),
-                            list(scenes.tasks))
+                            list(scenes.tasks), torch.from_numpy(scenes.stacked_pick.copy()))
 
 
 def dataset_samples(model, reader, *, stride: int, static_camera: str, wrist_camera: str,
@@ -131,16 +137,20 @@ def readout_parameters(model) -> dict[str, torch.nn.Parameter]:
 
 
 @torch.no_grad()
+def raw_subgoals(model, samples: GroundingSamples, *, batch_size: int = 128) -> torch.Tensor:
+    """The grounding's raw sub-goal of every sample (N, 3) or (N, 5) (TriVLA.subgoal_of_features), in eval mode."""
+    model.eval()
+    out = []
+    for start in range(0, len(samples), batch_size):
+        b = samples.batch(torch.arange(start, min(start + batch_size, len(samples))), samples.q_vl.shape[1])
+        out.append(model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"]).float())
+    return torch.cat(out)
+
+
 def subgoal_offsets(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
     """The grounding's sub-goal minus each sample's label [m], (N, 3)."""
-    model.eval()
-    offsets = []
-    for start in range(0, len(samples), batch_size):
-        rows = torch.arange(start, min(start + batch_size, len(samples)))
-        b = samples.batch(rows, samples.q_vl.shape[1])
-        predicted = denormalize_position(model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"])[:, :3])
-        offsets.append(predicted - b["subgoal_position"])
-    return torch.cat(offsets).numpy()
+    predicted = denormalize_position(raw_subgoals(model, samples, batch_size=batch_size)[:, :3])
+    return (predicted - samples.subgoal_position).numpy()
 
 
 def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
@@ -148,17 +158,50 @@ def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -
     return np.linalg.norm(subgoal_offsets(model, samples, batch_size=batch_size)[:, :2], axis=1)
 
 
+def _scene_rows(scenes: GroundingSamples, count: int, stacked_share: float | None,
+                generator: torch.Generator) -> torch.Tensor:
+    """`count` scene rows drawn with replacement: uniformly, or `stacked_share` of them from the stacked picks."""
+    if stacked_share is None:
+        return torch.randint(len(scenes), (count,), generator=generator)
+    stacked = scenes.stacked_rows()
+    pools = [torch.nonzero(stacked).flatten(), torch.nonzero(~stacked).flatten()]
+    from_stacked = int(round(count * stacked_share))
+    return torch.cat([pool[torch.randint(len(pool), (n,), generator=generator)]
+                      for pool, n in zip(pools, (from_stacked, count - from_stacked))])
+
+
 def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, steps: int, lr: float,
                   scene_share: float = 0.5, batch_size: int = 64, seed: int = 0, log_every: int = 100,
+                  stacked_share: float | None = None, hold_weight: float = 0.0,
                   progress: bool = True) -> list[tuple[int, float]]:
     """Adam on the grounding's read-out alone (`readout_parameters`), each batch `scene_share` rendered
-    scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps."""
+    scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps.
+
+    `stacked_share`: that fraction of each batch's scenes drawn from the scenes that pick the top block of a
+    stack (None: the scenes drawn uniformly). `hold_weight` > 0: every sample that picks no stacked block
+    (table scenes and dataset frames) is also pulled, with that weight, toward the sub-goal the read-out gave
+    it before the re-fit (the grounding loss between the two), so that teaching the stacked picks moves the
+    other answers as little as it can. The curve is of the whole loss."""
     from tqdm import tqdm
+
+    from trivla_drake.nn.instruction_grounding import grounding_loss
 
     if steps < 1 or not lr > 0 or batch_size < 2:
         raise ValueError(f"steps must be >= 1, lr > 0 and batch_size >= 2; got {steps}, {lr}, {batch_size}")
     if not 0.0 < scene_share < 1.0:
         raise ValueError(f"scene_share must be in (0, 1); got {scene_share}")
+    if not hold_weight >= 0.0:
+        raise ValueError(f"hold_weight must be >= 0; got {hold_weight}")
+    if stacked_share is not None:
+        if not 0.0 < stacked_share < 1.0:
+            raise ValueError(f"stacked_share must be in (0, 1); got {stacked_share}")
+        count = int(scenes.stacked_rows().sum())
+        if count in (0, len(scenes)):
+            raise ValueError(f"stacked_share draws from the scenes that pick a stacked block and from the others; "
+                             f"{count} of the {len(scenes)} scenes do (render them with stacked_picks)")
+    held = {}
+    if hold_weight > 0:  # the answers before the re-fit, raw (feature units)
+        held = {"scenes": raw_subgoals(model, scenes), "frames": raw_subgoals(model, frames)}
     trained = readout_parameters(model)
     for name, p in model.named_parameters():
         p.requires_grad_(False)
@@ -173,10 +216,16 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
     bar = tqdm(range(steps), desc="re-fitting the grounding", unit="step", disable=not progress)
     for step in bar:
         model.policy.grounding.train()
-        parts = [scenes.batch(torch.randint(len(scenes), (from_scenes,), generator=generator), length),
-                 frames.batch(torch.randint(len(frames), (batch_size - from_scenes,), generator=generator), length)]
+        rows = {"scenes": _scene_rows(scenes, from_scenes, stacked_share, generator),
+                "frames": torch.randint(len(frames), (batch_size - from_scenes,), generator=generator)}
+        parts = [scenes.batch(rows["scenes"], length), frames.batch(rows["frames"], length)]
         batch = {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
-        loss, _ = model.compute_grounding_loss(batch)
+        now = model.subgoal_of_features(batch["q_vl"], batch["q_vl_mask"], batch["state"])
+        loss = grounding_loss(now, batch["subgoal_position"], None, batch["subgoal_yaw"] if now.shape[1] == 5 else None)
+        if held:
+            before = torch.cat([held[name][r] for name, r in rows.items()])
+            yaw = before[:, 3:] if before.shape[1] == 5 else None
+            loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), ~batch["stacked"], yaw)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -188,3 +237,30 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
     model.requires_grad_(False)
     model.eval()
     return curve
+
+
+def save_samples(samples: GroundingSamples, path) -> None:
+    """Writes `samples` to `path` (a .pt file) atomically: a crash leaves the old file or none, never half of one."""
+    import os
+    from pathlib import Path
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    torch.save({"format": 1, "q_vl": samples.q_vl, "q_vl_mask": samples.q_vl_mask, "state": samples.state,
+                "subgoal_position": samples.subgoal_position, "subgoal_yaw": samples.subgoal_yaw,
+                "tasks": list(samples.tasks), "stacked": samples.stacked_rows()}, tmp)
+    os.replace(tmp, path)
+
+
+def load_samples(path) -> GroundingSamples:
+    """The samples `save_samples` wrote to `path`; ValueError naming the file when it is not such a file."""
+    try:
+        saved = torch.load(path, weights_only=True)
+    except Exception as error:  # a truncated or foreign file
+        raise ValueError(f"{path} holds no saved grounding samples ({type(error).__name__}: {error}); delete it "
+                         "and it is computed again") from error
+    if not isinstance(saved, dict) or saved.get("format") != 1:
+        raise ValueError(f"{path} holds no saved grounding samples of format 1; delete it and it is computed again")
+    return GroundingSamples(saved["q_vl"], saved["q_vl_mask"], saved["state"], saved["subgoal_position"],
+                            saved["subgoal_yaw"], list(saved["tasks"]), saved["stacked"])
