@@ -1171,3 +1171,29 @@ if [[ "${STACKED_REFIT:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$SS/compare.png" \
       shipped="results/prelude_stacked_mix/shipped+$SS/shipped" stackfit="$SS/stackfit" > "$SS/compare.md"
 fi
+
+# 59. Optional (STACKED_HOLD=1; results/stacked_hold/, session 56; about 1 h 30 min, after step 58): step 58's
+#     re-fit again with 40% of every batch's scenes drawn from the stacked picks (--stacked-share 0.4) and every
+#     sample that picks no stacked block held toward the shipped read-out's sub-goal (--hold 1), so that the table
+#     scenes keep their answers; its stacked picks and usual scenes on seeds 1000-1005 and its 80 chains, compared
+#     with the shipped model's and step 58's re-fit (all run on one CPU kind).
+if [[ "${STACKED_HOLD:-0}" == 1 ]]; then
+  SS=results/stacked_subgoal
+  SH=results/stacked_hold
+  mkdir -p "$SH"
+  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/stackhold" \
+      --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --hold 1 --steps 1500 --lr 3e-4 \
+      --report "$SH/stackhold_refit"
+  stacked_six_seeds "$RUNS/stackhold" "$SH/stackhold_stacked_picks"
+  six_seeds "$RUNS/stackhold" "$SH/stackhold"
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy "$RUNS/stackhold" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
+        --json > "$SH/stackhold_chains20_seed$seed.json"
+  done
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SH/stacked_picks.png" \
+      shipped=results/chain_lifts/stacked_picks/shipped stackfit="$SS/stackfit_stacked_picks" \
+      stackhold="$SH/stackhold_stacked_picks" > "$SH/stacked_picks.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$SH/compare.png" \
+      shipped="results/prelude_stacked_mix/shipped+$SS/shipped" stackfit="$SS/stackfit" stackhold="$SH/stackhold" \
+      > "$SH/compare.md"
+fi

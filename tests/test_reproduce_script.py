@@ -49,6 +49,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
+           "STACKED_HOLD": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -663,8 +664,30 @@ def test_step_58_replaces_the_stacked_picks_sub_goal_then_refits_the_grounding_w
                   and option(a, "--chains") == "20"]
         assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004", "1005", "1006"]
     compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
-                and any(x.startswith("stackfit=") for x in a)]
+                and any(x.startswith("stackfit=") for x in a) and not any(x.startswith("stackhold=") for x in a)]
     assert [a[2:4] for a in compares] == [
         ["results/stacked_subgoal/stacked_picks.png", "shipped=results/chain_lifts/stacked_picks/shipped"],
         ["--chain-seeds", "1003-1006"]]
     assert compares[1][5] == "shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"
+
+
+def test_step_59_refits_with_stacked_scenes_drawn_more_and_the_other_answers_held(calls, every_call):
+    refits = [a for a in every_call if a[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    stackhold = next(a for a in refits if a[4] == "runs/stackhold")
+    assert stackhold[2:4] == ["models/trivla_cpu", "data/sim"]
+    assert [option(stackhold, k) for k in ("--scenes", "--stacked-picks", "--stacked-share", "--hold", "--steps", "--lr")] == [
+        "12000", "0.3", "0.4", "1", "1500", "3e-4"]
+    runs = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/stackhold"]
+    picks = [a for a in runs if "--stacked-picks" in a]
+    chains = [a for a in runs if option(a, "--chains") == "20"]
+    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in runs if a not in picks + chains) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004", "1005", "1006"]
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("stackhold=") for x in a)]
+    assert compares[0][2:] == ["results/stacked_hold/stacked_picks.png", "shipped=results/chain_lifts/stacked_picks/shipped",
+                               "stackfit=results/stacked_subgoal/stackfit_stacked_picks",
+                               "stackhold=results/stacked_hold/stackhold_stacked_picks"]
+    assert compares[1][2:5] == ["--chain-seeds", "1003-1006", "results/stacked_hold/compare.png"]
+    assert compares[1][5:] == ["shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped",
+                               "stackfit=results/stacked_subgoal/stackfit", "stackhold=results/stacked_hold/stackhold"]
