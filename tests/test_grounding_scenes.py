@@ -473,3 +473,28 @@ def test_the_stacked_subgoal_diagnostic_replaces_only_its_axes_and_records_the_g
     monkeypatch.setattr("sys.argv", ["stacked_subgoal.py", "x", "1000", str(tmp_path)])
     with pytest.raises(SystemExit, match="MODE must be one of"):
         script.main()
+
+
+def test_the_stack_probe_fits_a_logistic_regression_per_view_and_scores_it_on_unseen_scenes(
+        tmp_path, monkeypatch, results_script):
+    from trivla_drake.nn.checkpoint import save_checkpoint
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    save_checkpoint(_grounded_model(), str(tmp_path / "model"))
+    script = results_script("stacked_hold/stack_probe.py")
+    argv = ["stack_probe.py", str(tmp_path / "model"), str(tmp_path / "probe.json"), "--scenes", "12",
+            "--test-scenes", "6", "--stacked-picks", "0.5", "--steps", "20"]
+    monkeypatch.setattr("sys.argv", argv)
+    script.main()
+    report = json.loads((tmp_path / "probe.json").read_text())
+    assert set(report["probes"]) == {"static", "wrist", "both"}
+    assert report["train"]["stacked"] > 0 and report["train"]["plain"] > 0
+    assert report["test"]["stacked"] > 0 and report["test"]["plain"] > 0
+    for probe in report["probes"].values():
+        for scored in probe.values():
+            assert 0.0 <= scored["accuracy"] <= 1.0
+            assert abs(scored["balanced_accuracy"] - (scored["stacked_recall"] + scored["plain_recall"]) / 2) < 2e-3
+    assert report["probes"]["both"]["training"]["accuracy"] > 0.5  # 20 steps fit a few training scenes
+    monkeypatch.setattr("sys.argv", argv[:4] + ["1", "--test-scenes", "6", "--stacked-picks", "0.5", "--steps", "1"])
+    with pytest.raises(SystemExit, match="all of one kind"):  # one training scene: a single class
+        script.main()
