@@ -1176,7 +1176,9 @@ fi
 #     re-fit again with 40% of every batch's scenes drawn from the stacked picks (--stacked-share 0.4) and every
 #     sample that picks no stacked block held toward the shipped read-out's sub-goal (--hold 1), so that the table
 #     scenes keep their answers; its stacked picks and usual scenes on seeds 1000-1005 and its 80 chains, compared
-#     with the shipped model's and step 58's re-fit (all run on one CPU kind).
+#     with the shipped model's and step 58's re-fit (all run on one CPU kind). Also the re-fit held harder (--hold 5;
+#     its sub-goal errors) and a probe of whether System 2's image tokens show a stack at all. System 2's Q_vl is
+#     computed once (refit_grounding.py keeps it in the cache folder) for the three.
 if [[ "${STACKED_HOLD:-0}" == 1 ]]; then
   SS=results/stacked_subgoal
   SH=results/stacked_hold
@@ -1184,6 +1186,10 @@ if [[ "${STACKED_HOLD:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/stackhold" \
       --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --hold 1 --steps 1500 --lr 3e-4 \
       --report "$SH/stackhold_refit"
+  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/stackhold5" \
+      --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --hold 5 --steps 1500 --lr 3e-4 \
+      --report "$SH/stackhold5_refit"  # held harder: its sub-goal errors only
+  "${PYTHON:-python}" $SH/stack_probe.py models/trivla_cpu "$SH/stack_probe.json"  # do the tokens show a stack?
   stacked_six_seeds "$RUNS/stackhold" "$SH/stackhold_stacked_picks"
   six_seeds "$RUNS/stackhold" "$SH/stackhold"
   for seed in 1003 1004 1005 1006; do

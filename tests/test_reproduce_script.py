@@ -677,6 +677,11 @@ def test_step_59_refits_with_stacked_scenes_drawn_more_and_the_other_answers_hel
     assert stackhold[2:4] == ["models/trivla_cpu", "data/sim"]
     assert [option(stackhold, k) for k in ("--scenes", "--stacked-picks", "--stacked-share", "--hold", "--steps", "--lr")] == [
         "12000", "0.3", "0.4", "1", "1500", "3e-4"]
+    held_harder = next(a for a in refits if a[4] == "runs/stackhold5")
+    assert option(held_harder, "--hold") == "5" and option(held_harder, "--report") == "results/stacked_hold/stackhold5_refit"
+    assert ["python", "results/stacked_hold/stack_probe.py", "models/trivla_cpu",
+            "results/stacked_hold/stack_probe.json"] in every_call
+    assert not any(a[0] == "evaluate" and option(a, "--policy") == "runs/stackhold5" for a in calls)
     runs = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/stackhold"]
     picks = [a for a in runs if "--stacked-picks" in a]
     chains = [a for a in runs if option(a, "--chains") == "20"]
