@@ -58,6 +58,24 @@ forty_chains() {  # forty_chains POLICY PREFIX: 20 five-task chains on each of s
         > "${prefix}_chains20_seed$seed.json"
   done
 }
+held_stacked_refit() {  # held_stacked_refit RUN REPORT [flags...]: the shipped grounding's read-out re-fitted on
+  #   step 58's rendered scenes with 40% of each batch from the stacked picks, the other samples' sub-goals held
+  #   (--hold 1 unless a flag says otherwise; steps 59-60) -> RUN, REPORT.json
+  local run=$1 report=$2
+  shift 2
+  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$run" \
+      --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --steps 1500 --lr 3e-4 --report "$report" "$@"
+}
+stacked_refit_evaluations() {  # stacked_refit_evaluations POLICY PREFIX: its stacked picks and usual scenes on seeds
+  #   1000-1005 and 80 chains (seeds 1003-1006) -> PREFIX_stacked_picks_seedS.json, PREFIX_seedS.json, PREFIX_chains20_seedS.json
+  local policy=$1 prefix=$2 seed
+  stacked_six_seeds "$policy" "${prefix}_stacked_picks"
+  six_seeds "$policy" "$prefix"
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
+        > "${prefix}_chains20_seed$seed.json"
+  done
+}
 arm() {  # arm NAME INIT SEED [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME with SEED.
   local name=$1 init=$2 seed=$3
   shift 3
@@ -1183,23 +1201,35 @@ if [[ "${STACKED_HOLD:-0}" == 1 ]]; then
   SS=results/stacked_subgoal
   SH=results/stacked_hold
   mkdir -p "$SH"
-  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/stackhold" \
-      --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --hold 1 --steps 1500 --lr 3e-4 \
-      --report "$SH/stackhold_refit"
-  "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/stackhold5" \
-      --scenes 12000 --stacked-picks 0.3 --stacked-share 0.4 --hold 5 --steps 1500 --lr 3e-4 \
-      --report "$SH/stackhold5_refit"  # held harder: its sub-goal errors only
+  held_stacked_refit "$RUNS/stackhold" "$SH/stackhold_refit" --hold 1
+  held_stacked_refit "$RUNS/stackhold5" "$SH/stackhold5_refit" --hold 5  # held harder: its sub-goal errors only
   "${PYTHON:-python}" $SH/stack_probe.py models/trivla_cpu "$SH/stack_probe.json"  # do the tokens show a stack?
-  stacked_six_seeds "$RUNS/stackhold" "$SH/stackhold_stacked_picks"
-  six_seeds "$RUNS/stackhold" "$SH/stackhold"
-  for seed in 1003 1004 1005 1006; do
-    trivla-drake evaluate --policy "$RUNS/stackhold" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress \
-        --json > "$SH/stackhold_chains20_seed$seed.json"
-  done
+  stacked_refit_evaluations "$RUNS/stackhold" "$SH/stackhold"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$SH/stacked_picks.png" \
       shipped=results/chain_lifts/stacked_picks/shipped stackfit="$SS/stackfit_stacked_picks" \
       stackhold="$SH/stackhold_stacked_picks" > "$SH/stacked_picks.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$SH/compare.png" \
       shipped="results/prelude_stacked_mix/shipped+$SS/shipped" stackfit="$SS/stackfit" stackhold="$SH/stackhold" \
       > "$SH/compare.md"
+fi
+
+# 60. Optional (GOAL_HOLD=1; results/goal_hold/, session 57; about 2 h 30 min, after step 59): step 59's re-fit
+#     (--stacked-share 0.4 --hold 1) with the goal token the grounding adds to System 1's state token also held
+#     where it was on every sample that picks no stacked block (--goal-hold 1); its stacked picks and usual scenes on
+#     seeds 1000-1005 and its 80 chains, compared with the shipped model's and step 59's. Step 59's re-fit again with
+#     today's script, for how far its goal token moved (its report's median_goal_drift; its checkpoint is the same).
+if [[ "${GOAL_HOLD:-0}" == 1 ]]; then
+  SS=results/stacked_subgoal
+  SH=results/stacked_hold
+  GH=results/goal_hold
+  mkdir -p "$GH"
+  held_stacked_refit "$RUNS/goalhold" "$GH/goalhold_refit" --hold 1 --goal-hold 1
+  stacked_refit_evaluations "$RUNS/goalhold" "$GH/goalhold"
+  held_stacked_refit "$RUNS/stackhold" "$GH/stackhold_rerun_refit" --hold 1  # step 59's again, for its goal drift
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$GH/stacked_picks.png" \
+      shipped=results/chain_lifts/stacked_picks/shipped stackhold="$SH/stackhold_stacked_picks" \
+      goalhold="$GH/goalhold_stacked_picks" > "$GH/stacked_picks.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$GH/compare.png" \
+      shipped="results/prelude_stacked_mix/shipped+$SS/shipped" stackhold="$SH/stackhold" goalhold="$GH/goalhold" \
+      > "$GH/compare.md"
 fi

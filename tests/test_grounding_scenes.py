@@ -207,7 +207,11 @@ def _grounded_model():
     config = make_config("tiny", init_seed=4)
     config = dataclasses.replace(config, policy=dataclasses.replace(
         config.policy, tcp_features=True, instruction_grounding=True, grounding_reads_gripper=True))
-    return TriVLA(config).eval()
+    model = TriVLA(config).eval()
+    with torch.no_grad():  # the goal projection as a trained one would be, not at its zero start
+        last = model.policy.grounding.goal[2]
+        last.weight.copy_(0.1 * torch.randn(last.weight.shape, generator=torch.Generator().manual_seed(5)))
+    return model
 
 
 def test_the_refit_trains_the_grounding_readout_alone_and_lowers_its_loss():
@@ -272,6 +276,8 @@ def test_stacked_share_draws_that_part_of_the_scenes_from_the_stacked_picks():
         refit.refit_readout(model, frames, frames, steps=1, lr=1e-3, stacked_share=0.5)
     with pytest.raises(ValueError, match="hold_weight must be >= 0"):
         refit.refit_readout(model, scenes, frames, steps=1, lr=1e-3, hold_weight=-1.0)
+    with pytest.raises(ValueError, match="goal_hold_weight must be >= 0"):
+        refit.refit_readout(model, scenes, frames, steps=1, lr=1e-3, goal_hold_weight=-1.0)
 
 
 def test_hold_keeps_the_answers_of_samples_that_pick_no_stacked_block_closer_to_where_they_were():
@@ -287,6 +293,39 @@ def test_hold_keeps_the_answers_of_samples_that_pick_no_stacked_block_closer_to_
         assert not any(p.requires_grad for p in model.parameters())
     assert moved[20.0][0] < 0.5 * moved[0.0][0]  # the table scenes stay nearer their old answers...
     assert moved[20.0][1] > moved[20.0][0]  # ...while the stacked picks still move
+
+
+def test_the_groundings_outputs_are_the_goal_token_the_dit_reads_and_the_subgoal():
+    model = _grounded_model()
+    scenes, _ = _stacked_and_plain_samples(model, n=6)
+    goals, subgoals = refit.grounding_outputs(model, scenes, batch_size=4)
+    assert goals.shape == (6, model.config.policy.hidden_size) and subgoals.shape[0] == 6
+    torch.testing.assert_close(subgoals, refit.raw_subgoals(model, scenes))
+    b = scenes.batch(torch.arange(6), scenes.q_vl.shape[1])
+    with torch.no_grad():
+        torch.testing.assert_close(subgoals, model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"]).float())
+    moved = refit.goal_drift(goals, 1.5 * goals)
+    torch.testing.assert_close(moved, torch.full((6,), 0.5))
+    assert refit.goal_drift(goals, goals).abs().max() == 0
+
+
+def test_goal_hold_keeps_the_goal_token_of_samples_that_pick_no_stacked_block_nearer_where_it_was():
+    drift = {}
+    for goal_hold in (0.0, 50.0):
+        model = _grounded_model()
+        scenes, frames = _stacked_and_plain_samples(model)
+        before = refit.grounding_outputs(model, scenes)[0]
+        refit.refit_readout(model, scenes, frames, steps=40, lr=3e-3, batch_size=8, stacked_share=0.5,
+                            goal_hold_weight=goal_hold, progress=False)
+        moved = refit.goal_drift(before, refit.grounding_outputs(model, scenes)[0])
+        drift[goal_hold] = (float(moved[~scenes.stacked].mean()), float(moved[scenes.stacked].mean()))
+    assert drift[0.0][0] > 0  # unheld, the re-fit moves what System 1 reads...
+    assert drift[50.0][0] < 0.5 * drift[0.0][0]  # ...held, the table scenes' goal tokens stay nearer
+    model = _grounded_model()
+    torch.nn.init.zeros_(model.policy.grounding.goal[2].weight)  # a goal projection at its zero start: nothing to hold
+    curve = refit.refit_readout(model, scenes, frames, steps=4, lr=1e-3, batch_size=8, log_every=2, stacked_share=0.5,
+                                hold_weight=1.0, goal_hold_weight=1.0, progress=False)
+    assert all(np.isfinite(loss) for _, loss in curve)
 
 
 def test_saved_samples_load_back_and_a_broken_file_is_named(tmp_path):
@@ -348,7 +387,7 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     monkeypatch.setattr("sys.argv", ["refit_grounding.py", str(tmp_path / "in"), data, str(tmp_path / "out"),
                                      "--scenes", "4", "--test-scenes", "2", "--chain-starts", "0.5", "--stacked-picks", "0.5",
                                      "--steps", "3", "--lr", "0.01", "--threads", "1", "--hold", "0.5",
-                                     "--report", str(tmp_path / "report")])
+                                     "--goal-hold", "0.5", "--report", str(tmp_path / "report")])
     script.main()
     assert "Q_vl of" not in capsys.readouterr().out
     report = json.loads((tmp_path / "report.json").read_text())
@@ -357,6 +396,8 @@ def test_the_refit_script_saves_a_model_whose_grounding_alone_changed_and_report
     for test in ("test_scenes", "test_chain_starts", "test_stacked_picks"):
         assert set(report["median_and_p90_xy_error_cm"]["after"][test]) == {"all", "lift_block"}
         assert set(report["median_z_error_cm"]["after"][test]) == {"all", "lift_block"}
+        assert set(report["median_goal_drift"][test]) == {"all", "lift_block"}
+    assert report["settings"]["goal_hold"] == 0.5 and report["median_goal_drift"]["data_frames"]["all"] >= 0
     assert (tmp_path / "report.loss.png").stat().st_size > 0
     sets = list((tmp_path / "cache" / "trivla_drake" / "train" / "grounding_scenes").iterdir())
     assert len(sets) == 4  # training (half chain starts, half stacked picks), plain, chain-start and stacked tests

@@ -49,7 +49,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
-           "STACKED_HOLD": "1",
+           "STACKED_HOLD": "1", "GOAL_HOLD": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -671,6 +671,16 @@ def test_step_58_replaces_the_stacked_picks_sub_goal_then_refits_the_grounding_w
     assert compares[1][5] == "shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"
 
 
+def assert_stacked_refit_evaluations(calls: list[list[str]], policy: str) -> None:
+    """`policy` was evaluated on the stacked picks and the usual scenes of seeds 1000-1005 and on 80 chains."""
+    runs = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == policy]
+    picks = [a for a in runs if "--stacked-picks" in a]
+    chains = [a for a in runs if option(a, "--chains") == "20"]
+    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in runs if a not in picks + chains) == [str(s) for s in range(1000, 1006)]
+    assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004", "1005", "1006"]
+
+
 def test_step_59_refits_with_stacked_scenes_drawn_more_and_the_other_answers_held(calls, every_call):
     refits = [a for a in every_call if a[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
     stackhold = next(a for a in refits if a[4] == "runs/stackhold")
@@ -682,12 +692,7 @@ def test_step_59_refits_with_stacked_scenes_drawn_more_and_the_other_answers_hel
     assert ["python", "results/stacked_hold/stack_probe.py", "models/trivla_cpu",
             "results/stacked_hold/stack_probe.json"] in every_call
     assert not any(a[0] == "evaluate" and option(a, "--policy") == "runs/stackhold5" for a in calls)
-    runs = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/stackhold"]
-    picks = [a for a in runs if "--stacked-picks" in a]
-    chains = [a for a in runs if option(a, "--chains") == "20"]
-    assert sorted(option(a, "--seed") for a in picks) == [str(s) for s in range(1000, 1006)]
-    assert sorted(option(a, "--seed") for a in runs if a not in picks + chains) == [str(s) for s in range(1000, 1006)]
-    assert sorted(option(a, "--seed") for a in chains) == ["1003", "1004", "1005", "1006"]
+    assert_stacked_refit_evaluations(calls, "runs/stackhold")
     compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
                 and any(x.startswith("stackhold=") for x in a)]
     assert compares[0][2:] == ["results/stacked_hold/stacked_picks.png", "shipped=results/chain_lifts/stacked_picks/shipped",
@@ -696,3 +701,25 @@ def test_step_59_refits_with_stacked_scenes_drawn_more_and_the_other_answers_hel
     assert compares[1][2:5] == ["--chain-seeds", "1003-1006", "results/stacked_hold/compare.png"]
     assert compares[1][5:] == ["shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped",
                                "stackfit=results/stacked_subgoal/stackfit", "stackhold=results/stacked_hold/stackhold"]
+
+
+def test_step_60_holds_the_goal_token_too_and_compares_with_step_59(calls, every_call):
+    refits = [a for a in every_call if a[:2] == ["python", "results/grounding_scenes/refit_grounding.py"]]
+    goalhold = next(a for a in refits if a[4] == "runs/goalhold")
+    stackhold = next(a for a in refits if a[4] == "runs/stackhold")
+    assert goalhold[2:4] == stackhold[2:4] == ["models/trivla_cpu", "data/sim"]
+    same = ("--scenes", "--stacked-picks", "--stacked-share", "--hold", "--steps", "--lr")
+    assert [option(goalhold, k) for k in same] == [option(stackhold, k) for k in same]  # step 59's, plus the goal hold
+    assert option(goalhold, "--goal-hold") == "1" and option(stackhold, "--goal-hold") is None
+    assert option(goalhold, "--report") == "results/goal_hold/goalhold_refit"
+    rerun = [a for a in refits if a[4] == "runs/stackhold" and option(a, "--report") == "results/goal_hold/stackhold_rerun_refit"]
+    assert len(rerun) == 1 and [option(rerun[0], k) for k in same] == [option(stackhold, k) for k in same]
+    assert_stacked_refit_evaluations(calls, "runs/goalhold")
+    compares = [a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and any(x.startswith("goalhold=") for x in a)]
+    assert compares[0][2:] == ["results/goal_hold/stacked_picks.png", "shipped=results/chain_lifts/stacked_picks/shipped",
+                               "stackhold=results/stacked_hold/stackhold_stacked_picks",
+                               "goalhold=results/goal_hold/goalhold_stacked_picks"]
+    assert compares[1][2:5] == ["--chain-seeds", "1003-1006", "results/goal_hold/compare.png"]
+    assert compares[1][5:] == ["shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped",
+                               "stackhold=results/stacked_hold/stackhold", "goalhold=results/goal_hold/goalhold"]

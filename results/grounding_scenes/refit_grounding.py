@@ -5,7 +5,7 @@ checkpoint). Writes OUT/ (the checkpoint), REPORT.json (errors per task, loss cu
 (REPORT: --report, default OUT).
 
 python results/grounding_scenes/refit_grounding.py CHECKPOINT DATA OUT [--scenes 12000] [--test-scenes 600]
-    [--chain-starts 0] [--stacked-picks 0] [--stacked-share F] [--hold W] [--steps 1500] [--lr 3e-4] [--stride 3]
+    [--chain-starts 0] [--stacked-picks 0] [--stacked-share F] [--hold W] [--goal-hold W] [--steps 1500] [--lr 3e-4] [--stride 3]
     [--threads 2] [--report PREFIX] [--no-q-vl-cache]
 
 With --chain-starts F, that fraction of the training scenes start where one or two earlier tasks of a chain left
@@ -14,8 +14,9 @@ start so (`test_chain_starts`). With --stacked-picks F, that fraction of the lif
 pick the top block of a stack (results/stacked_subgoal/), and the errors are also reported on 600 unseen scenes whose
 lift, place in bowl and stack all do (`test_stacked_picks`). Every test set also reports the sub-goal's median
 height error (`median_z_error_cm`, signed: sub-goal minus label). --stacked-share F draws that fraction of each
-batch's scenes from the stacked picks, and --hold W pulls every other sample toward the sub-goal the read-out gave it
-before (grounding_refit.refit_readout; results/stacked_hold/).
+batch's scenes from the stacked picks, --hold W pulls every other sample toward the sub-goal the read-out gave it
+before and --goal-hold W toward the goal token it gave System 1 (grounding_refit.refit_readout; results/stacked_hold/).
+The report also has how far the goal token moved (`median_goal_drift`: |after - before| / |before|, per task).
 
 System 2's Q_vl of every set is computed once per checkpoint and kept in the cache folder
 (train/config.default_cache_dir()/grounding_q_vl, keyed by the checkpoint's files and the set), so a second re-fit of
@@ -103,6 +104,8 @@ def main() -> None:
                         help="fraction of each batch's scenes drawn from the stacked picks (default: uniform)")
     parser.add_argument("--hold", type=float, default=0.0,
                         help="weight pulling every sample that picks no stacked block toward its sub-goal before")
+    parser.add_argument("--goal-hold", type=float, default=0.0,
+                        help="weight pulling the goal token System 1 reads toward where it was, on the same samples")
     parser.add_argument("--no-q-vl-cache", action="store_true", help="compute System 2's Q_vl anew, keep nothing")
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--lr", type=float, default=3e-4)
@@ -135,11 +138,18 @@ def main() -> None:
         xy = {name: xy for name, (xy, _) in summaries.items()} | {"data_frames": error_summaries(model, frames)[0]}
         return xy, {name: z for name, (_, z) in summaries.items()}
 
+    goals_before = {name: refit.grounding_outputs(model, samples)[0] for name, samples in tests.items()}
+    goals_before["data_frames"] = refit.grounding_outputs(model, frames)[0]
     before, before_z = errors()
     print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
     curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr,
-                                stacked_share=args.stacked_share, hold_weight=args.hold)
+                                stacked_share=args.stacked_share, hold_weight=args.hold, goal_hold_weight=args.goal_hold)
     after, after_z = errors()
+    drift = {}  # how far the goal token System 1 reads moved, relative, median per task
+    for name, samples in list(tests.items()) + [("data_frames", frames)]:
+        moved = by_task(refit.goal_drift(goals_before[name], refit.grounding_outputs(model, samples)[0]).numpy(), samples)
+        drift[name] = {k: round(float(np.median(v)), 3) for k, v in moved.items()}
+    print("goal drift", json.dumps({k: v["all"] for k, v in drift.items()}), flush=True)
     print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)
     save_checkpoint(model, args.out, weights_dtype="float16")
     report = {"checkpoint": args.checkpoint, "data": args.data, "settings": vars(args),
@@ -147,7 +157,8 @@ def main() -> None:
               "seconds": {"scenes_and_their_q_vl": round(scenes_s), "data_q_vl": round(prepare_s - scenes_s),
                           "refit": round(time.time() - started - prepare_s)},
               "median_and_p90_xy_error_cm": {"before": before, "after": after},
-              "median_z_error_cm": {"before": before_z, "after": after_z}, "loss_ema": curve}
+              "median_z_error_cm": {"before": before_z, "after": after_z}, "median_goal_drift": drift,
+              "loss_ema": curve}
     report_prefix = args.report or args.out
     Path(f"{report_prefix}.json").write_text(json.dumps(report, indent=1))
     import matplotlib

@@ -331,9 +331,17 @@ class FlowMatchingPolicy(nn.Module):
         """The instruction grounding's sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then
         its yaw's (cos 4 psi, sin 4 psi)), from Q_vl (and, with `grounding_reads_tcp`, the tcp
         features (B, 9); with `grounding_reads_gripper`, the gripper's closure (B, 1))."""
+        return self.ground(q_vl, q_vl_mask, tcp, gripper)[1]
+
+    def ground(
+        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None,
+        gripper: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The instruction grounding's goal token (B, D), which the DiT reads, and its sub-goal (as
+        `predict_subgoal`), from Q_vl and the same optional inputs."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
-        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp, gripper)[1]
+        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp, gripper)
 
     # ------------------------------------------------------------------ flow matching
 

@@ -632,12 +632,18 @@ class TriVLA(nn.Module):
         """The instruction grounding's raw sub-goal (B, 3) or (B, 5) (see `predict_subgoal`) of precomputed Q_vl
         (B, S, D_llm) with its mask (B, S) or None, and unnormalised robot states (B, state_dim), read when the
         grounding reads the tool-centre point or the gripper (else may be None)."""
+        return self.grounding_of_features(q_vl, q_vl_mask, state)[1]
+
+    def grounding_of_features(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None,
+                              state: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The instruction grounding's goal token (B, D_policy), which System 1's DiT reads, and its raw sub-goal
+        (as `subgoal_of_features`), from the same inputs."""
         tcp = gripper = None
         if self.policy.grounding_reads_tcp:
             tcp = self.tcp_features(state).to(q_vl.dtype)
         if self.config.policy.grounding_reads_gripper:
             gripper = self._gripper_for_grounding(state).to(q_vl.dtype)
-        return self.policy.predict_subgoal(q_vl, q_vl_mask, tcp, gripper)
+        return self.policy.ground(q_vl, q_vl_mask, tcp, gripper)
 
     def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A batch's Q_vl and its mask: precomputed "q_vl" (+ optional "q_vl_mask"), or System 2 run on

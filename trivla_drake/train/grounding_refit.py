@@ -137,14 +137,27 @@ def readout_parameters(model) -> dict[str, torch.nn.Parameter]:
 
 
 @torch.no_grad()
-def raw_subgoals(model, samples: GroundingSamples, *, batch_size: int = 128) -> torch.Tensor:
-    """The grounding's raw sub-goal of every sample (N, 3) or (N, 5) (TriVLA.subgoal_of_features), in eval mode."""
+def grounding_outputs(model, samples: GroundingSamples, *, batch_size: int = 128) -> tuple[torch.Tensor, torch.Tensor]:
+    """The grounding's goal token (N, D) and raw sub-goal (N, 3) or (N, 5) of every sample
+    (TriVLA.grounding_of_features), in eval mode."""
     model.eval()
-    out = []
+    goals, subgoals = [], []
     for start in range(0, len(samples), batch_size):
         b = samples.batch(torch.arange(start, min(start + batch_size, len(samples))), samples.q_vl.shape[1])
-        out.append(model.subgoal_of_features(b["q_vl"], b["q_vl_mask"], b["state"]).float())
-    return torch.cat(out)
+        goal, subgoal = model.grounding_of_features(b["q_vl"], b["q_vl_mask"], b["state"])
+        goals.append(goal.float())
+        subgoals.append(subgoal.float())
+    return torch.cat(goals), torch.cat(subgoals)
+
+
+def raw_subgoals(model, samples: GroundingSamples, *, batch_size: int = 128) -> torch.Tensor:
+    """The grounding's raw sub-goal of every sample (N, 3) or (N, 5) (TriVLA.subgoal_of_features), in eval mode."""
+    return grounding_outputs(model, samples, batch_size=batch_size)[1]
+
+
+def goal_drift(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
+    """How far each sample's goal token moved (N,): |after - before| / |before|."""
+    return (after - before).norm(dim=1) / before.norm(dim=1).clamp(min=1e-6)
 
 
 def subgoal_offsets(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
@@ -172,7 +185,7 @@ def _scene_rows(scenes: GroundingSamples, count: int, stacked_share: float | Non
 
 def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, steps: int, lr: float,
                   scene_share: float = 0.5, batch_size: int = 64, seed: int = 0, log_every: int = 100,
-                  stacked_share: float | None = None, hold_weight: float = 0.0,
+                  stacked_share: float | None = None, hold_weight: float = 0.0, goal_hold_weight: float = 0.0,
                   progress: bool = True) -> list[tuple[int, float]]:
     """Adam on the grounding's read-out alone (`readout_parameters`), each batch `scene_share` rendered
     scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps.
@@ -181,7 +194,9 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
     stack (None: the scenes drawn uniformly). `hold_weight` > 0: every sample that picks no stacked block
     (table scenes and dataset frames) is also pulled, with that weight, toward the sub-goal the read-out gave
     it before the re-fit (the grounding loss between the two), so that teaching the stacked picks moves the
-    other answers as little as it can. The curve is of the whole loss."""
+    other answers as little as it can. `goal_hold_weight` > 0: likewise for the goal token System 1's DiT reads
+    (the grounding's read goes into it besides the sub-goal; System 1 was trained on the token as it was), its
+    squared change relative to the tokens' mean square before. The curve is of the whole loss."""
     from tqdm import tqdm
 
     from trivla_drake.nn.instruction_grounding import grounding_loss
@@ -190,8 +205,9 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
         raise ValueError(f"steps must be >= 1, lr > 0 and batch_size >= 2; got {steps}, {lr}, {batch_size}")
     if not 0.0 < scene_share < 1.0:
         raise ValueError(f"scene_share must be in (0, 1); got {scene_share}")
-    if not hold_weight >= 0.0:
-        raise ValueError(f"hold_weight must be >= 0; got {hold_weight}")
+    for name, weight in (("hold_weight", hold_weight), ("goal_hold_weight", goal_hold_weight)):
+        if not weight >= 0.0:
+            raise ValueError(f"{name} must be >= 0; got {weight}")
     if stacked_share is not None:
         if not 0.0 < stacked_share < 1.0:
             raise ValueError(f"stacked_share must be in (0, 1); got {stacked_share}")
@@ -200,8 +216,10 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
             raise ValueError(f"stacked_share draws from the scenes that pick a stacked block and from the others; "
                              f"{count} of the {len(scenes)} scenes do (render them with stacked_picks)")
     held = {}
-    if hold_weight > 0:  # the answers before the re-fit, raw (feature units)
-        held = {"scenes": raw_subgoals(model, scenes), "frames": raw_subgoals(model, frames)}
+    if hold_weight > 0 or goal_hold_weight > 0:  # the goal tokens and raw sub-goals before the re-fit
+        held = {"scenes": grounding_outputs(model, scenes), "frames": grounding_outputs(model, frames)}
+        # The tokens' mean square before (a goal projection still at its zero start gives 0: nothing to hold).
+        goal_scale = max(float(torch.cat([held["scenes"][0], held["frames"][0]]).square().sum(1).mean()), 1e-12)
     trained = readout_parameters(model)
     for name, p in model.named_parameters():
         p.requires_grad_(False)
@@ -220,12 +238,16 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
                 "frames": torch.randint(len(frames), (batch_size - from_scenes,), generator=generator)}
         parts = [scenes.batch(rows["scenes"], length), frames.batch(rows["frames"], length)]
         batch = {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
-        now = model.subgoal_of_features(batch["q_vl"], batch["q_vl_mask"], batch["state"])
+        goal, now = model.grounding_of_features(batch["q_vl"], batch["q_vl_mask"], batch["state"])
         loss = grounding_loss(now, batch["subgoal_position"], None, batch["subgoal_yaw"] if now.shape[1] == 5 else None)
         if held:
-            before = torch.cat([held[name][r] for name, r in rows.items()])
+            kept = ~batch["stacked"]
+            goal_before, before = (torch.cat([held[name][k][r] for name, r in rows.items()]) for k in (0, 1))
             yaw = before[:, 3:] if before.shape[1] == 5 else None
-            loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), ~batch["stacked"], yaw)
+            loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), kept, yaw)
+            if goal_hold_weight > 0:
+                moved = (goal - goal_before).square().sum(1) / goal_scale
+                loss = loss + goal_hold_weight * (moved * kept).sum() / kept.sum().clamp(min=1)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
