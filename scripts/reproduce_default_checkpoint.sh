@@ -1216,8 +1216,9 @@ fi
 # 60. Optional (GOAL_HOLD=1; results/goal_hold/, session 57; about 2 h 30 min, after step 59): step 59's re-fit
 #     (--stacked-share 0.4 --hold 1) with the goal token the grounding adds to System 1's state token also held
 #     where it was on every sample that picks no stacked block (--goal-hold 1); its stacked picks and usual scenes on
-#     seeds 1000-1005 and its 80 chains, compared with the shipped model's and step 59's. Step 59's re-fit again with
-#     today's script, for how far its goal token moved (its report's median_goal_drift; its checkpoint is the same).
+#     seeds 1000-1005 and its 80 chains, compared with the shipped model's and step 59's. Then step 59's re-fit again
+#     with today's script, for how far its goal token moved (its report's median_goal_drift; made on another CPU kind
+#     than step 59's, its sub-goal errors differ by up to 0.05 cm; not run closed loop).
 if [[ "${GOAL_HOLD:-0}" == 1 ]]; then
   SS=results/stacked_subgoal
   SH=results/stacked_hold
