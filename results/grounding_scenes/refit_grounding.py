@@ -46,10 +46,10 @@ def by_task(values: np.ndarray, samples) -> dict[str, np.ndarray]:
     return {"all": values} | {t: values[tasks == t] for t in sorted(set(samples.tasks))}
 
 
-def error_summaries(model, samples) -> tuple[dict, dict]:
+def error_summaries(offsets: np.ndarray, samples) -> tuple[dict, dict]:
     """The sub-goal's median and 90th percentile x-y error [cm], and its median signed height error [cm] (sub-goal
-    minus label), all samples and per task, from one pass of the grounding over `samples`."""
-    offsets = 100 * refit.subgoal_offsets(model, samples)
+    minus label), all samples and per task, from the sub-goals' `offsets` [m] (N, 3) from their labels."""
+    offsets = 100 * offsets
     xy = by_task(np.linalg.norm(offsets[:, :2], axis=1), samples)
     z = by_task(offsets[:, 2], samples)
     return ({k: [round(float(np.median(v)), 3), round(float(np.percentile(v, 90)), 3)] for k, v in xy.items()},
@@ -132,22 +132,32 @@ def main() -> None:
         model, LeRobotReader(args.data), stride=args.stride,
         static_camera="observation.images.static", wrist_camera="observation.images.wrist"))
     prepare_s = time.time() - started
-    def errors():
-        """x-y errors of the test sets and the data frames; height errors of the test sets."""
-        summaries = {name: error_summaries(model, samples) for name, samples in tests.items()}
-        xy = {name: xy for name, (xy, _) in summaries.items()} | {"data_frames": error_summaries(model, frames)[0]}
-        return xy, {name: z for name, (_, z) in summaries.items()}
+    sets = tests | {"data_frames": frames}
 
-    goals_before = {name: refit.grounding_outputs(model, samples)[0] for name, samples in tests.items()}
-    goals_before["data_frames"] = refit.grounding_outputs(model, frames)[0]
-    before, before_z = errors()
+    def outputs():
+        """One pass of the grounding over every set: its goal tokens and its sub-goals' offsets [m] from the labels."""
+        out = {}
+        for name, samples in sets.items():
+            goals, raw = refit.grounding_outputs(model, samples)
+            out[name] = (goals, refit.offsets_from_raw(raw, samples))
+        return out
+
+    def errors(out):
+        """x-y errors of the test sets and the data frames; height errors of the test sets."""
+        summaries = {name: error_summaries(offsets, sets[name]) for name, (_, offsets) in out.items()}
+        return ({name: xy for name, (xy, _) in summaries.items()},
+                {name: z for name, (_, z) in summaries.items() if name != "data_frames"})
+
+    outputs_before = outputs()
+    before, before_z = errors(outputs_before)
     print("before", json.dumps({k: v["all"] for k, v in before.items()}), flush=True)
     curve = refit.refit_readout(model, scenes, frames, steps=args.steps, lr=args.lr,
                                 stacked_share=args.stacked_share, hold_weight=args.hold, goal_hold_weight=args.goal_hold)
-    after, after_z = errors()
+    outputs_after = outputs()
+    after, after_z = errors(outputs_after)
     drift = {}  # how far the goal token System 1 reads moved, relative, median per task
-    for name, samples in list(tests.items()) + [("data_frames", frames)]:
-        moved = by_task(refit.goal_drift(goals_before[name], refit.grounding_outputs(model, samples)[0]).numpy(), samples)
+    for name, samples in sets.items():
+        moved = by_task(refit.goal_drift(outputs_before[name][0], outputs_after[name][0]).numpy(), samples)
         drift[name] = {k: round(float(np.median(v)), 3) for k, v in moved.items()}
     print("goal drift", json.dumps({k: v["all"] for k, v in drift.items()}), flush=True)
     print("after", json.dumps({k: v["all"] for k, v in after.items()}), flush=True)

@@ -160,10 +160,14 @@ def goal_drift(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
     return (after - before).norm(dim=1) / before.norm(dim=1).clamp(min=1e-6)
 
 
+def offsets_from_raw(raw: torch.Tensor, samples: GroundingSamples) -> np.ndarray:
+    """Raw sub-goals (N, 3) or (N, 5) of `samples` (`grounding_outputs`) minus each sample's label [m], (N, 3)."""
+    return (denormalize_position(raw[:, :3]) - samples.subgoal_position).numpy()
+
+
 def subgoal_offsets(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
     """The grounding's sub-goal minus each sample's label [m], (N, 3)."""
-    predicted = denormalize_position(raw_subgoals(model, samples, batch_size=batch_size)[:, :3])
-    return (predicted - samples.subgoal_position).numpy()
+    return offsets_from_raw(raw_subgoals(model, samples, batch_size=batch_size), samples)
 
 
 def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -> np.ndarray:
@@ -244,7 +248,8 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
             kept = ~batch["stacked"]
             goal_before, before = (torch.cat([held[name][k][r] for name, r in rows.items()]) for k in (0, 1))
             yaw = before[:, 3:] if before.shape[1] == 5 else None
-            loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), kept, yaw)
+            if hold_weight > 0:
+                loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), kept, yaw)
             if goal_hold_weight > 0:
                 moved = (goal - goal_before).square().sum(1) / goal_scale
                 loss = loss + goal_hold_weight * (moved * kept).sum() / kept.sum().clamp(min=1)
