@@ -49,7 +49,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
-           "STACKED_HOLD": "1", "GOAL_HOLD": "1",
+           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -723,3 +723,27 @@ def test_step_60_holds_the_goal_token_too_and_compares_with_step_59(calls, every
     assert compares[1][2:5] == ["--chain-seeds", "1003-1006", "results/goal_hold/compare.png"]
     assert compares[1][5:] == ["shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped",
                                "stackhold=results/stacked_hold/stackhold", "goalhold=results/goal_hold/goalhold"]
+
+
+def test_step_61_trains_step_30_s_arm_on_three_tenths_of_the_data_and_draws_the_curve(calls, every_call):
+    """Step 61: the same three phases as step 30's arm, on 9 + 15 demonstrations per task (MORE_DATA's 30 + 50 per
+    task times 0.3), evaluated on six seeds, then the learning curve."""
+    def lineage(export_dir: str) -> list[list[str]]:
+        follow = run_writing(calls, export_dir.removesuffix("/final"))
+        bind = run_writing(calls, option(follow, "--init").removesuffix("/final"))
+        joint = run_writing(calls, option(bind, "--init").removesuffix("/final"))
+        return [follow, bind, joint]
+
+    export30 = run_writing(calls, "runs/data30_export")
+    export10 = run_writing(calls, "runs/data10_export")
+    arm30, arm10 = lineage(export30[1]), lineage(export10[1])
+
+    def without_names(argv: list[str]) -> list[str]:
+        return [a for a in argv if "data10" not in a and "data30" not in a and "pct" not in a]
+    assert [without_names(a) for a in arm30] == [without_names(a) for a in arm10]
+    data = option(arm30[0], "--data")
+    collected = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == data]
+    assert [(int(option(a, "--episodes-per-task")), "--prelude-tasks" in a) for a in collected] == [(9, False), (24, True)]
+    evaluated = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/data30_export"]
+    assert sorted(option(a, "--seed") for a in evaluated) == [str(s) for s in range(1000, 1006)]
+    assert any(a[:2] == ["python", "results/data_efficiency/learning_curve.py"] for a in every_call)
