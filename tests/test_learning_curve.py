@@ -56,3 +56,15 @@ def test_bad_arms_name_what_is_wrong(tmp_path, script):
         script.main([str(tmp_path / "x.png"), f"a=400={tmp_path}/a", f"b=100={tmp_path}/b"])
     with pytest.raises(SystemExit, match="no such evaluation"):
         script.main([str(tmp_path / "x.png"), f"a=100={tmp_path}/missing"])
+
+
+def test_other_seeds_are_read_with_seeds_and_a_bad_range_names_the_option(tmp_path, capsys, script):
+    _write_arm(tmp_path / "small", lift=[0] * 6, drawer=[2] * 6)
+    _write_arm(tmp_path / "large", lift=[2, 2, 2, 0, 0, 0], drawer=[2] * 6)
+    script.main(["--seeds", "1000-1002", str(tmp_path / "curve.png"), f"small=100={tmp_path / 'small'}",
+                 f"large=200={tmp_path / 'large'}"])
+    printed = capsys.readouterr().out
+    assert "| large | 200 | 1.000 ± 0.000 | 1.000 ± 0.000 | 1.000 ± 0.000 |" in printed
+    assert "Seeds 1000-1002" in printed
+    with pytest.raises(SystemExit, match="--seeds"):
+        script.main(["--seeds", "1002-1000", str(tmp_path / "curve.png")])

@@ -1,8 +1,8 @@
 """Success against the number of demonstrations (Table 1 bottom, as a curve), from stored evaluations.
 
-    python results/data_efficiency/learning_curve.py OUT.png [LABEL=DEMOS=PREFIX ...]
+    python results/data_efficiency/learning_curve.py [--seeds FIRST-LAST] OUT.png [LABEL=DEMOS=PREFIX ...]
 
-reads PREFIX_seed1000.json ... PREFIX_seed1005.json (`evaluate --episodes 2 --seed S --json`) for each arm
+reads PREFIX_seed1000.json ... PREFIX_seed1005.json (or FIRST ... LAST; `evaluate --episodes 2 --seed S --json`) for each arm
 (without arms: the stored ones below), prints a markdown table (successes of all tasks, of the block tasks and of
 the tasks whose target is fixed in the scene, each with its mean over seeds and standard error), the gain per
 doubling of the demonstrations between consecutive arms, and the number of demonstrations at which the log-linear
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "follow_control"))
-from compare_seeds import SEEDS, first_file, stderr  # noqa: E402 - a sibling results script, run as a file
+from compare_seeds import SEEDS, first_file, parse_seeds, stderr  # noqa: E402 - a sibling results script, run as a file
 
 # The drawer and the lamp stand where they always stand: these tasks need no block to be found.
 FIXED_TARGET_TASKS = frozenset({"open_drawer", "close_drawer", "turn_on_light", "turn_off_light"})
@@ -74,19 +74,24 @@ def parse_arm(text: str) -> tuple[str, int, str]:
 
 
 def main(argv: list[str]) -> None:
+    seeds = SEEDS
+    if argv[:1] == ["--seeds"]:
+        if len(argv) < 2:
+            raise SystemExit(__doc__)
+        seeds, argv = parse_seeds(argv[1]), argv[2:]
     if not argv:
         raise SystemExit(__doc__)
     out = Path(argv[0])
     arms = [parse_arm(arg) for arg in argv[1:]] or list(STORED_ARMS)
     if [demos for _, demos, _ in arms] != sorted({demos for _, demos, _ in arms}):
         raise SystemExit("arms: give them in rising, distinct numbers of demonstrations")
-    loaded = [(label, demos, successes_by_group(prefix)) for label, demos, prefix in arms]
+    loaded = [(label, demos, successes_by_group(prefix, seeds)) for label, demos, prefix in arms]
 
     print(f"| arm | demonstrations | all 12 tasks | 8 block tasks | 4 fixed-target tasks |\n| --- | --- | --- | --- | --- |")
     for label, demos, groups in loaded:
         cells = " | ".join(f"{g.mean():.3f} ± {stderr(g):.3f}" for g in groups.values())
         print(f"| {label} | {demos} | {cells} |")
-    print(f"\nSeeds {SEEDS[0]}-{SEEDS[-1]}, 2 episodes per task and seed (mean over seeds ± standard error).\n")
+    print(f"\nSeeds {seeds[0]}-{seeds[-1]}, 2 episodes per task and seed (mean over seeds ± standard error).\n")
     print("| between | success gained per doubling (all / block tasks) |\n| --- | --- |")
     for (label0, demos0, groups0), (label1, demos1, groups1) in zip(loaded, loaded[1:]):
         gains = [gain_per_doubling((demos0, demos1), (groups0[g].mean(), groups1[g].mean())) for g in ("all", "block")]
@@ -116,7 +121,7 @@ def main(argv: list[str]) -> None:
     ax.minorticks_off()
     ax.set_ylim(0, 1)
     ax.set_xlabel("demonstrations (log scale)")
-    ax.set_ylabel("success rate (seeds 1000-1005, ± s.e.)")
+    ax.set_ylabel(f"success rate (seeds {seeds[0]}-{seeds[-1]}, ± s.e.)")
     ax.set_title("Success against the number of demonstrations")
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
