@@ -51,20 +51,20 @@ stacked_six_seeds() {  # stacked_six_seeds POLICY PREFIX: lift, stack and place 
         --stacked-picks --workers 2 --no-progress --json > "${prefix}_seed$seed.json"
   done
 }
-fresh_system1_arm() {  # fresh_system1_arm DATA NAME: a fresh System 1 on the shipped model's Systems 2 and 3, by
-  #   step 12's three phases (joint 2000 steps, a fresh grounding bound 1200 steps and checked, followed 2500 steps
-  #   with averaged weights), exported (steps 30 and 61) -> RUNS/NAME_{joint,bind,follow,export},
-  #   results/data_efficiency/grounding_check_NAME.md
-  local data=$1 name=$2
+fresh_system1_arm() {  # fresh_system1_arm DATA NAME [JOINT BIND FOLLOW]: a fresh System 1 on the shipped model's
+  #   Systems 2 and 3, by step 12's three phases (joint, default 2000 steps; a fresh grounding bound, default 1200
+  #   steps, and checked; followed, default 2500 steps, with averaged weights), exported (steps 30 and 61)
+  #   -> RUNS/NAME_{joint,bind,follow,export}, results/data_efficiency/grounding_check_NAME.md
+  local data=$1 name=$2 joint_steps=${3:-2000} bind_steps=${4:-1200} follow_steps=${5:-2500}
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_joint" --init models/trivla_cpu \
-      --fresh-system1 --lr 3e-4 --steps 2000 --grounding-lr-scale 7 --subgoal-offset
+      --fresh-system1 --lr 3e-4 --steps "$joint_steps" --grounding-lr-scale 7 --subgoal-offset
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_bind" --init "$RUNS/${name}_joint/final" \
-      --grounding-phase bind --lr 2e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 --steps 1200 \
-      --batch-size 64 --subgoal-offset
+      --grounding-phase bind --lr 2e-3 --warmup-steps 1 --min-lr-ratio 1 --beta2 0.999 --grad-clip 0 \
+      --steps "$bind_steps" --batch-size 64 --subgoal-offset
   trivla-drake probe --checkpoint "$RUNS/${name}_bind/final" --grounding-scenes 10 --threads 2 \
       > "results/data_efficiency/grounding_check_${name}.md"
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init "$RUNS/${name}_bind/final" \
-      --grounding-phase follow --lr 3e-4 --steps 2500 --seed 1 --subgoal-offset --ema-decay 0.999
+      --grounding-phase follow --lr 3e-4 --steps "$follow_steps" --seed 1 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
 }
 forty_chains() {  # forty_chains POLICY PREFIX: 20 five-task chains on each of seeds 1003 and 1004 -> PREFIX_chains20_seedS.json
@@ -1242,17 +1242,24 @@ if [[ "${GOAL_HOLD:-0}" == 1 ]]; then
       > "$GH/compare.md"
 fi
 
-# 61. Optional (DATA30=1; results/data_efficiency/, session 58; about 2 h): a third point of the data-efficiency curve.
-#     Step 30's arm (a fresh System 1 on the shipped model's Systems 2 and 3, the same three phases and steps) on
-#     30% of MORE_DATA's 960 demonstrations in its proportions: 9 from the start posture and 15 after a chain prelude
-#     per task (288 episodes, collected afresh with collect's base seed 0); six seeds, its grounding check, and the
-#     curve of success against the number of demonstrations with the 10% arm and the shipped lineage.
+# 61. Optional (DATA30=1; results/data_efficiency/, session 58; about 2 h 30 min here): a third point of the
+#     data-efficiency curve. Step 30's arm (a fresh System 1 on the shipped model's Systems 2 and 3, the same three
+#     phases) on 30% of MORE_DATA's 960 demonstrations in its proportions: 9 from the start posture and 15 after a
+#     chain prelude per task (288 episodes, collected afresh with collect's base seed 0), but with 28% of step 30's
+#     steps (600 / 300 / 700 against 2000 / 1200 / 2500: collecting took 75 min and caching the features about 45 min
+#     on this 2-core machine, so step 30's steps did not fit the session); evaluated on seeds 1000-1002 (1003-1005
+#     where the session had the time), and the curve of success against the number of demonstrations with the 10%
+#     arm and the shipped model. FULL_STEPS=1 trains with step 30's steps instead.
 if [[ "${DATA30:-0}" == 1 ]]; then
   DEMOS30=${DEMOS30:-$DATA-30pct}
   trivla-drake collect --out "$DEMOS30" --episodes-per-task 9 --workers 2
   trivla-drake collect --out "$DEMOS30" --episodes-per-task 24 --prelude-tasks 4 --workers 2
-  fresh_system1_arm "$DEMOS30" data30
+  if [[ "${FULL_STEPS:-0}" == 1 ]]; then
+    fresh_system1_arm "$DEMOS30" data30
+  else
+    fresh_system1_arm "$DEMOS30" data30 600 300 700
+  fi
   six_seeds "$RUNS/data30_export" results/data_efficiency/data30
-  "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve.png \
-      > results/data_efficiency/learning_curve.md
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py --seeds 1000-1002 \
+      results/data_efficiency/learning_curve.png > results/data_efficiency/learning_curve.md
 fi
