@@ -1245,11 +1245,12 @@ fi
 # 61. Optional (DATA30=1; results/data_efficiency/, session 58; about 2 h 30 min here): a third point of the
 #     data-efficiency curve. Step 30's arm (a fresh System 1 on the shipped model's Systems 2 and 3, the same three
 #     phases) on 30% of MORE_DATA's 960 demonstrations in its proportions: 9 from the start posture and 15 after a
-#     chain prelude per task (288 episodes, collected afresh with collect's base seed 0), but with 28% of step 30's
-#     steps (600 / 300 / 700 against 2000 / 1200 / 2500: collecting took 75 min and caching the features about 45 min
-#     on this 2-core machine, so step 30's steps did not fit the session); evaluated on seeds 1000-1002 (1003-1005
-#     where the session had the time), and the curve of success against the number of demonstrations with the 10%
-#     arm and the shipped model. FULL_STEPS=1 trains with step 30's steps instead.
+#     chain prelude per task (288 episodes, collected afresh with collect's base seed 0), but with a fifth of step
+#     30's steps (600 / 300 / 300 against 2000 / 1200 / 2500: collecting took 75 min, caching the features about
+#     40 min and a training step 1.0-1.9 s on this 2-core machine, so step 30's steps did not fit the session);
+#     evaluated on seeds 1000-1005 (session 58 had the time for fewer: results/data_efficiency/README.md), and the
+#     curve of success against the number of demonstrations with the 10% arm and the shipped model. FULL_STEPS=1
+#     trains with step 30's steps instead.
 if [[ "${DATA30:-0}" == 1 ]]; then
   DEMOS30=${DEMOS30:-$DATA-30pct}
   trivla-drake collect --out "$DEMOS30" --episodes-per-task 9 --workers 2
@@ -1257,7 +1258,7 @@ if [[ "${DATA30:-0}" == 1 ]]; then
   if [[ "${FULL_STEPS:-0}" == 1 ]]; then
     fresh_system1_arm "$DEMOS30" data30
   else
-    fresh_system1_arm "$DEMOS30" data30 600 300 700
+    fresh_system1_arm "$DEMOS30" data30 600 300 300
   fi
   six_seeds "$RUNS/data30_export" results/data_efficiency/data30
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py --seeds 1000-1002 \

@@ -726,7 +726,7 @@ def test_step_60_holds_the_goal_token_too_and_compares_with_step_59(calls, every
 
 
 def test_step_61_trains_step_30_s_arm_on_three_tenths_of_the_data_and_draws_the_curve(calls, every_call):
-    """Step 61: the same three phases as step 30's arm with 28% of its steps, on 9 + 15 demonstrations per task
+    """Step 61: the same three phases as step 30's arm with a fifth of its steps, on 9 + 15 demonstrations per task
     (MORE_DATA's 30 + 50 per task times 0.3), evaluated on six seeds, then the learning curve."""
     def lineage(export_dir: str) -> list[list[str]]:
         follow = run_writing(calls, export_dir.removesuffix("/final"))
@@ -741,10 +741,10 @@ def test_step_61_trains_step_30_s_arm_on_three_tenths_of_the_data_and_draws_the_
     def without_names_or_steps(argv: list[str]) -> list[str]:
         steps = argv.index("--steps") + 1
         return [a for i, a in enumerate(argv) if i != steps and not any(n in a for n in ("data10", "data30", "pct"))]
-    # the same commands, with 28% of step 30's steps (what fitted the session's time)
+    # the same commands, with a fifth of step 30's steps (what fitted the session's time)
     assert [without_names_or_steps(a) for a in arm30] == [without_names_or_steps(a) for a in arm10]
     assert [option(a, "--steps") for a in arm10] == ["2500", "1200", "2000"]
-    assert [option(a, "--steps") for a in arm30] == ["700", "300", "600"]
+    assert [option(a, "--steps") for a in arm30] == ["300", "300", "600"]
     data = option(arm30[0], "--data")
     collected = [argv for argv in calls if argv[0] == "collect" and option(argv, "--out") == data]
     assert [(int(option(a, "--episodes-per-task")), "--prelude-tasks" in a) for a in collected] == [(9, False), (24, True)]

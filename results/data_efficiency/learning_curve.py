@@ -30,10 +30,10 @@ _HERE = "results/data_efficiency"
 STORED_ARMS = (
     # label, demonstrations, prefix. Step 30's arm (96) and step 61's (288) train a fresh System 1 on the shipped
     # model's Systems 2 and 3 by the same three phases: step 30's stored six-seed files are its continuation (8200
-    # steps in all; its 5700-step export scored 4 of 144 less), step 61 had 1600 steps (what fitted its session).
+    # steps in all; its 5700-step export scored 4 of 144 less), step 61 had 1200 steps (what fitted its session).
     # The 960 are the shipped model, whose System 1 trained far longer; rerun on the AMD EPYC kind step 61 ran on.
     ("10% (step 30, 8200 steps)", 96, f"{_HERE}/data10_longer"),
-    ("30% (step 61, 1600 steps)", 288, f"{_HERE}/data30"),
+    ("30% (step 61, 1200 steps)", 288, f"{_HERE}/data30"),
     ("100% (shipped)", 960, "results/prelude_stacked_mix/shipped"),
 )
 
