@@ -1261,6 +1261,7 @@ if [[ "${DATA30:-0}" == 1 ]]; then
     fresh_system1_arm "$DEMOS30" data30 600 300 300
   fi
   six_seeds "$RUNS/data30_export" results/data_efficiency/data30
-  "${PYTHON:-python}" results/data_efficiency/learning_curve.py --seeds 1000-1002 \
-      results/data_efficiency/learning_curve.png > results/data_efficiency/learning_curve.md
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve.png \
+      "10%=96=results/data_efficiency/data10_longer" "30%=288=results/data_efficiency/data30" \
+      "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve.md
 fi

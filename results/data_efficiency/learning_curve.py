@@ -32,8 +32,9 @@ STORED_ARMS = (
     # model's Systems 2 and 3 by the same three phases: step 30's stored six-seed files are its continuation (8200
     # steps in all; its 5700-step export scored 4 of 144 less), step 61 had 1200 steps (what fitted its session).
     # The 960 are the shipped model, whose System 1 trained far longer; rerun on the AMD EPYC kind step 61 ran on.
+    # Step 61's arm has one seed so far (data30_seed1000.json): give it as an arm once it has the seeds asked for,
+    # "30% (step 61)=288=results/data_efficiency/data30".
     ("10% (step 30, 8200 steps)", 96, f"{_HERE}/data10_longer"),
-    ("30% (step 61, 1200 steps)", 288, f"{_HERE}/data30"),
     ("100% (shipped)", 960, "results/prelude_stacked_mix/shipped"),
 )
 
