@@ -1250,7 +1250,7 @@ fi
 #     40 min and a training step 1.0-1.9 s on this 2-core machine, so step 30's steps did not fit the session);
 #     evaluated on seeds 1000-1005 (session 58 had the time for fewer: results/data_efficiency/README.md), and the
 #     curve of success against the number of demonstrations with the 10% arm and the shipped model. FULL_STEPS=1
-#     trains with step 30's steps instead.
+#     trains with step 30's steps instead (session 59 ran it on session 58's episodes: its grounding did not bind).
 if [[ "${DATA30:-0}" == 1 ]]; then
   DEMOS30=${DEMOS30:-$DATA-30pct}
   trivla-drake collect --out "$DEMOS30" --episodes-per-task 9 --workers 2
