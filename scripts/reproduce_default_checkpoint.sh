@@ -1265,3 +1265,32 @@ if [[ "${DATA30:-0}" == 1 ]]; then
       "10%=96=results/data_efficiency/data10_longer" "30%=288=results/data_efficiency/data30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve.md
 fi
+# 62. Optional (BIND_COUNTS=1; results/data_efficiency/, session 61; about 1 h 15 min here): how many
+#     demonstrations a fresh grounding bind needs. Step 61's bind (1200 steps) from the shipped model (its System 1
+#     and Q_vl path, the grounding reset), each checked by `probe --grounding-scenes 10`: on step 12's 360 clean
+#     episodes (collect base seed 0: results/data_efficiency/bind_on_96.sh's 96 clean are their first 8 a task) and
+#     288 / 180 / 108 of them (--fraction 0.8 / 0.5 / 0.3, drawn by seed 0), and on step 61's 288 (9 clean and 15
+#     after a prelude a task) -> results/data_efficiency/grounding_check_shippedbind_NAME.md (and the run's
+#     summary.json copied as shippedbind_NAME.summary.json)
+if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
+  BIND_FROM_SHIPPED=(train --stage policy --feature-stride 3 --vl-position-embedding --grounding-weight 1 --threads 2
+                     --init models/trivla_cpu --grounding-phase bind --lr 2e-3 --warmup-steps 1 --min-lr-ratio 1
+                     --beta2 0.999 --grad-clip 0 --steps 1200 --batch-size 64 --subgoal-offset --no-progress)
+  bind_from_shipped() {  # bind_from_shipped NAME [train flags...] -> RUNS/shippedbind_NAME and its check
+    local name=$1
+    shift
+    trivla-drake "${BIND_FROM_SHIPPED[@]}" --out "$RUNS/shippedbind_$name" "$@"
+    trivla-drake probe --checkpoint "$RUNS/shippedbind_$name/final" --grounding-scenes 10 --threads 2 \
+        > "results/data_efficiency/grounding_check_shippedbind_$name.md"
+  }
+  CLEAN360=${CLEAN360:-$DATA-clean360}
+  MIX288=${MIX288:-$DATA-mix288}
+  trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
+  bind_from_shipped clean360 --data "$CLEAN360"
+  for fraction in 0.8 0.5 0.3; do
+    bind_from_shipped "clean360_f$fraction" --data "$CLEAN360" --fraction "$fraction"
+  done
+  trivla-drake collect --out "$MIX288" --episodes-per-task 9 --workers 2 --no-progress
+  trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
+  bind_from_shipped mix288 --data "$MIX288"
+fi

@@ -49,7 +49,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
-           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1",
+           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -751,3 +751,23 @@ def test_step_61_trains_step_30_s_arm_on_three_tenths_of_the_data_and_draws_the_
     evaluated = [argv for argv in calls if argv[0] == "evaluate" and option(argv, "--policy") == "runs/data30_export"]
     assert sorted(option(a, "--seed") for a in evaluated) == [str(s) for s in range(1000, 1006)]
     assert any(a[:2] == ["python", "results/data_efficiency/learning_curve.py"] for a in every_call)
+
+
+def test_step_62_binds_a_fresh_grounding_from_the_shipped_model_on_shares_of_360_clean_and_on_step_61_s_mix(calls):
+    """Step 62: step 61's bind, from the shipped model, on 360 clean demonstrations, 0.8 / 0.5 / 0.3 of them and
+    step 61's 288 (9 clean + 15 after a prelude a task); each checked on unseen scenes."""
+    binds = {option(a, "--out"): a for a in calls if a[0] == "train" and "shippedbind_" in option(a, "--out", "")}
+    assert sorted(binds) == [f"runs/shippedbind_{n}" for n in
+                             ("clean360", "clean360_f0.3", "clean360_f0.5", "clean360_f0.8", "mix288")]
+    step61_bind = run_writing(calls, "runs/data30_bind")
+    for out, argv in binds.items():
+        assert option(argv, "--init") == "models/trivla_cpu" and option(argv, "--grounding-phase") == "bind"
+        for flag in ("--lr", "--steps", "--batch-size", "--beta2", "--grad-clip"):
+            assert option(argv, flag) == option(step61_bind, flag) or (flag == "--steps" and option(argv, flag) == "1200")
+        assert ["probe", "--checkpoint", f"{out}/final", "--grounding-scenes", "10", "--threads", "2"] in calls
+    assert [option(binds[f"runs/shippedbind_clean360_f{f}"], "--fraction") for f in ("0.8", "0.5", "0.3")] == \
+        ["0.8", "0.5", "0.3"]
+    clean, mix = option(binds["runs/shippedbind_clean360"], "--data"), option(binds["runs/shippedbind_mix288"], "--data")
+    collected = {d: [(int(option(a, "--episodes-per-task")), "--prelude-tasks" in a)
+                     for a in calls if a[0] == "collect" and option(a, "--out") == d] for d in (clean, mix)}
+    assert collected == {clean: [(30, False)], mix: [(9, False), (24, True)]}
