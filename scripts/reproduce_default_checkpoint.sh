@@ -1282,6 +1282,7 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
     trivla-drake "${BIND_FROM_SHIPPED[@]}" --out "$RUNS/shippedbind_$name" "$@"
     trivla-drake probe --checkpoint "$RUNS/shippedbind_$name/final" --grounding-scenes 10 --threads 2 \
         > "results/data_efficiency/grounding_check_shippedbind_$name.md"
+    cp "$RUNS/shippedbind_$name/summary.json" "results/data_efficiency/shippedbind_$name.summary.json"
   }
   CLEAN360=${CLEAN360:-$DATA-clean360}
   MIX288=${MIX288:-$DATA-mix288}
@@ -1293,4 +1294,17 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
   trivla-drake collect --out "$MIX288" --episodes-per-task 9 --workers 2 --no-progress
   trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
   bind_from_shipped mix288 --data "$MIX288"
+fi
+# 63. Optional (KEPT_GROUNDING10=1; results/data_efficiency/, session 62; about 1 h 30 min here): the 10% arm with
+#     the shipped instruction grounding kept, as the paper's 10% arm keeps its pretrained VLM: a fresh System 1
+#     (--fresh-system1, seed 1) but for the shipped grounding and the feature statistics it was bound on
+#     (--grounding-phase follow keeps them), followed 4500 steps (step 30's joint and follow together) with averaged
+#     weights on step 30's 96 demonstrations; exported and evaluated on six seeds
+#     -> results/data_efficiency/kept10_seedS.json (and the run's summary as kept10_follow.summary.json)
+if [[ "${KEPT_GROUNDING10:-0}" == 1 ]]; then
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/kept10_follow" --init models/trivla_cpu \
+      --fresh-system1 --grounding-phase follow --lr 3e-4 --steps 4500 --seed 1 --subgoal-offset --ema-decay 0.999
+  cp "$RUNS/kept10_follow/summary.json" results/data_efficiency/kept10_follow.summary.json
+  trivla-drake export "$RUNS/kept10_follow/final" --out "$RUNS/kept10_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/kept10_export" results/data_efficiency/kept10
 fi

@@ -363,6 +363,21 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     mine = gripped.policy.state_dict()
     for name, value in after.policy.state_dict().items():
         assert torch.equal(mine[name], value), name
+    # --fresh-system1 in a follow run: a System 1 drawn anew from --seed but for the bound checkpoint's
+    # binding and feature statistics, which it keeps (a policy learnt anew on a grounding bound elsewhere)
+    fresh_follow = dataclasses.replace(again, grounding_phase="follow", fresh_system1=True)
+    fresh_follow.validate()
+    anew = build_model(fresh_follow, None).policy
+    drawn = load_checkpoint(bound["final_checkpoint"])
+    drawn.reset_system1(5)
+    bound_weights = dict(after.policy.named_parameters())
+    for name, p in anew.named_parameters():
+        assert torch.equal(p, (bound_weights if name in binding else dict(drawn.policy.named_parameters()))[name]), name
+    assert not all(torch.equal(p, bound_weights[name]) for name, p in anew.named_parameters() if name not in binding)
+    for name, buffer in after.policy.named_buffers():
+        assert torch.equal(anew.get_buffer(name), buffer), name
+    with pytest.raises(ValueError, match=r"fresh_system1 \(--fresh-system1\).*joint, or follow"):
+        dataclasses.replace(again, fresh_system1=True).validate()  # a bind run
     for bad in (dict(grounding_phase="follow"), dict(init=None)):
         with pytest.raises(ValueError, match=r"keep_grounding \(--keep-grounding\).*bind and --init"):
             dataclasses.replace(again, keep_grounding=True, **bad).validate()

@@ -114,13 +114,25 @@ class TriVLA(nn.Module):
             if self.vision_language else (),
         )
 
-    def reset_system1(self, seed: int) -> None:
+    def reset_system1(self, seed: int, keep_binding: bool = False) -> None:
         """Replaces System 1 by a fresh one initialised from `seed` (the global RNGs are left untouched),
-        keeping Systems 2 and 3: System 1 trained from scratch on pretrained Systems 2 / 3."""
-        old = next(self.policy.parameters())
+        keeping Systems 2 and 3: System 1 trained from scratch on pretrained Systems 2 / 3. With
+        `keep_binding` the new System 1 takes the old one's `binding_parameters` (its instruction grounding
+        but the goal projection, and the Q_vl path that grounding reads) and its buffers (the feature
+        statistics that binding was learnt on), so only the rest is fresh."""
+        old_policy = self.policy
+        kept = {}
+        if keep_binding:
+            kept = {**old_policy.binding_parameters(), **dict(old_policy.named_buffers())}
+        old = next(old_policy.parameters())
         with torch.random.fork_rng(devices=_cuda_devices()):
             torch.manual_seed(seed)
             self.policy = self._new_policy().to(old.device, old.dtype)
+        if kept:
+            fresh = {**self.policy.binding_parameters(), **dict(self.policy.named_buffers())}
+            with torch.no_grad():
+                for name, value in kept.items():
+                    fresh[name].copy_(value)
 
     # ------------------------------------------------------------------ bookkeeping
 

@@ -238,7 +238,8 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                              "(System 3's copied from the cache of --init's model)")
     parser.add_argument("--fresh-system1", action="store_true",
                         help="policy, with --init: train a fresh System 1 (drawn from --seed) on --init's Systems 2 "
-                             "and 3, keeping its System 1 options (e.g. the 10%%-data arm of the tables)")
+                             "and 3, keeping its System 1 options (e.g. the 10%%-data arm of the tables); with "
+                             "--grounding-phase follow it keeps --init's instruction grounding")
     parser.add_argument("--keep-normalization", action="store_true",
                         help="policy, with --init: keep --init's state and action statistics instead of fitting "
                              "them to --data (a follow on a dataset whose action ranges are narrower)")

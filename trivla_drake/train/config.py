@@ -202,7 +202,9 @@ class TrainConfig:
     system2_from: str | None = None
     # policy stage, with --init: a fresh System 1 (drawn from `seed`) on the --init model's Systems 2 and 3,
     # with its options (grounding, sub-goal offset, ...): System 1 trained from scratch on frozen
-    # pretrained Systems 2 / 3, as the 10%-data arm of Table 1 is (results/data_efficiency).
+    # pretrained Systems 2 / 3, as the 10%-data arm of Table 1 is (results/data_efficiency). In a follow run
+    # the fresh System 1 keeps --init's instruction grounding (`TriVLA.reset_system1(keep_binding=True)`): the
+    # policy learnt anew on a grounding bound elsewhere, as a pretrained VLM brings its grounding.
     fresh_system1: bool = False
     # policy stage, with --init: keep the --init model's state and action normalisation (what its System 1
     # learnt its outputs in) instead of fitting it to --data's meta/stats.json; for a follow on a dataset whose
@@ -348,10 +350,11 @@ class TrainConfig:
         if self.keep_grounding and not (self.grounding_phase == "bind" and self.init):
             raise ValueError("keep_grounding (--keep-grounding) continues the grounding of a --init checkpoint in a "
                              "bind run: it needs --grounding-phase bind and --init")
-        if self.fresh_system1 and not (self.stage == "policy" and self.init and self.grounding_phase == "joint"):
+        if self.fresh_system1 and not (self.stage == "policy" and self.init
+                                       and self.grounding_phase in ("joint", "follow")):
             raise ValueError("fresh_system1 (--fresh-system1) trains a new System 1 on the Systems 2 / 3 of a --init "
-                             "model: it needs --stage policy, --init and --grounding-phase joint (bind and follow "
-                             "go on from a System 1 that has learnt something)")
+                             "model: it needs --stage policy, --init and --grounding-phase joint, or follow to keep "
+                             "--init's instruction grounding (bind goes on from a System 1 that has learnt something)")
         if self.keep_normalization and not (self.stage == "policy" and self.init):
             raise ValueError("keep_normalization (--keep-normalization) keeps the state and action statistics of a "
                              "--init checkpoint: it needs --stage policy and --init")

@@ -260,7 +260,7 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.system2_from is not None:
             model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
         if config.fresh_system1:
-            model.reset_system1(config.seed)
+            model.reset_system1(config.seed, keep_binding=config.grounding_phase == "follow")
         if config.grounding_phase == "bind" and not config.keep_grounding:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
