@@ -1295,16 +1295,33 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
   trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
   bind_from_shipped mix288 --data "$MIX288"
 fi
-# 63. Optional (KEPT_GROUNDING10=1; results/data_efficiency/, session 62; about 1 h 30 min here): the 10% arm with
-#     the shipped instruction grounding kept, as the paper's 10% arm keeps its pretrained VLM: a fresh System 1
-#     (--fresh-system1, seed 1) but for the shipped grounding and the feature statistics it was bound on
+# 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, session 62; about 1 h 45 min here): the data curve
+#     with the shipped instruction grounding kept, as the paper's small-data arm keeps its pretrained VLM. A fresh
+#     System 1 (--fresh-system1, seed 1) but for the shipped grounding and the feature statistics it was bound on
 #     (--grounding-phase follow keeps them), followed 4500 steps (step 30's joint and follow together) with averaged
-#     weights on step 30's 96 demonstrations; exported and evaluated on six seeds
-#     -> results/data_efficiency/kept10_seedS.json (and the run's summary as kept10_follow.summary.json)
-if [[ "${KEPT_GROUNDING10:-0}" == 1 ]]; then
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/kept10_follow" --init models/trivla_cpu \
-      --fresh-system1 --grounding-phase follow --lr 3e-4 --steps 4500 --seed 1 --subgoal-offset --ema-decay 0.999
-  cp "$RUNS/kept10_follow/summary.json" results/data_efficiency/kept10_follow.summary.json
-  trivla-drake export "$RUNS/kept10_follow/final" --out "$RUNS/kept10_export" --drop-unused-llm-layers
-  six_seeds "$RUNS/kept10_export" results/data_efficiency/kept10
+#     weights, on step 30's 96 demonstrations and on step 62's 288 (step 61's proportions; collected here unless
+#     step 62 did); each checked as a bind is, exported and evaluated on six seeds
+#     -> results/data_efficiency/keptNN_seedS.json, grounding_check_keptNN.md, keptNN_follow.summary.json, and the
+#     curve of both arms with the shipped model, learning_curve_kept.{md,png}
+if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
+  kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
+    local data=$1 name=$2
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
+        --fresh-system1 --grounding-phase follow --lr 3e-4 --steps 4500 --seed 1 --subgoal-offset --ema-decay 0.999
+    cp "$RUNS/${name}_follow/summary.json" "results/data_efficiency/${name}_follow.summary.json"
+    trivla-drake probe --checkpoint "$RUNS/${name}_follow/final" --grounding-scenes 10 --threads 2 \
+        > "results/data_efficiency/grounding_check_$name.md"
+    trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
+    six_seeds "$RUNS/${name}_export" "results/data_efficiency/$name"
+  }
+  MIX288=${MIX288:-$DATA-mix288}
+  if [[ ! -d "$MIX288" ]]; then
+    trivla-drake collect --out "$MIX288" --episodes-per-task 9 --workers 2 --no-progress
+    trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
+  fi
+  kept_grounding_arm "$DATA10" kept10
+  kept_grounding_arm "$MIX288" kept30
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
+      "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
+      "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md
 fi

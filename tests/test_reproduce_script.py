@@ -32,14 +32,16 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     calls = tmp_path / "calls.txt"
-    # a recorded train call leaves OUT/summary.json, as a real one does, for the steps that copy it
+    # a recorded collect or train call leaves its OUT folder (a train call OUT/summary.json), as a real one
+    # does, for the steps that look for them
     record = ("import os, shlex, sys\n"
               "args = sys.argv[2:]\n"
               "print(sys.argv[1] + shlex.join(args))\n"
-              "if args[:1] == ['train'] and '--out' in args:\n"
+              "if args[:1] in (['collect'], ['train']) and '--out' in args:\n"
               "    out = args[args.index('--out') + 1]\n"
               "    os.makedirs(out, exist_ok=True)\n"
-              "    open(os.path.join(out, 'summary.json'), 'a').close()\n")
+              "    if args[0] == 'train':\n"
+              "        open(os.path.join(out, 'summary.json'), 'a').close()\n")
     (bin_dir / "record.py").write_text(record)
     for name, prefix in (("trivla-drake", ""), ("python-recorder", "python ")):
         recorder = bin_dir / name
@@ -57,7 +59,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
-           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1", "KEPT_GROUNDING10": "1",
+           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1", "KEPT_GROUNDING": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
@@ -781,18 +783,27 @@ def test_step_62_binds_a_fresh_grounding_from_the_shipped_model_on_shares_of_360
     assert collected == {clean: [(30, False)], mix: [(9, False), (24, True)]}
 
 
-def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_with_step_30_s_data_and_evaluates_six_seeds(calls):
-    """Step 63: the 10% arm keeping the shipped grounding: a fresh System 1 in a follow run from the shipped
-    model on step 30's 96 demonstrations, as many steps as step 30's joint and follow together, exported and
-    evaluated on six seeds."""
-    follow = run_writing(calls, "runs/kept10_follow")
+def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_percent_and_draws_the_curve(calls, every_call):
+    """Step 63: the small-data arms keeping the shipped grounding: a fresh System 1 in a follow run from the
+    shipped model, as many steps as step 30's joint and follow together, on step 30's 96 demonstrations and on
+    step 62's 288; each checked, exported and evaluated on six seeds; the curve drawn through them."""
     step30_joint, step30_follow = run_writing(calls, "runs/data10_joint"), run_writing(calls, "runs/data10_follow")
-    assert option(follow, "--data") == option(step30_follow, "--data")
-    assert option(follow, "--init") == "models/trivla_cpu" and "--fresh-system1" in follow
-    assert option(follow, "--grounding-phase") == "follow" and "--subgoal-offset" in follow
-    assert int(option(follow, "--steps")) == int(option(step30_joint, "--steps")) + int(option(step30_follow, "--steps"))
-    assert option(follow, "--ema-decay") == option(step30_follow, "--ema-decay")
-    assert "--drop-unused-llm-layers" in run_writing(calls, "runs/kept10_export")
-    assert run_writing(calls, "runs/kept10_export")[1] == "runs/kept10_follow/final"
-    seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/kept10_export"]
-    assert seeds == [str(s) for s in range(1000, 1006)]
+    data = {"kept10": option(step30_follow, "--data"),
+            "kept30": option(run_writing(calls, "runs/shippedbind_mix288"), "--data")}
+    for name, expected_data in data.items():
+        follow = run_writing(calls, f"runs/{name}_follow")
+        assert option(follow, "--data") == expected_data
+        assert option(follow, "--init") == "models/trivla_cpu" and "--fresh-system1" in follow
+        assert option(follow, "--grounding-phase") == "follow" and "--subgoal-offset" in follow
+        assert int(option(follow, "--steps")) == \
+            int(option(step30_joint, "--steps")) + int(option(step30_follow, "--steps"))
+        assert option(follow, "--ema-decay") == option(step30_follow, "--ema-decay")
+        assert ["probe", "--checkpoint", f"runs/{name}_follow/final", "--grounding-scenes", "10", "--threads", "2"] in calls
+        export = run_writing(calls, f"runs/{name}_export")
+        assert export[1] == f"runs/{name}_follow/final" and "--drop-unused-llm-layers" in export
+        seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and option(a, "--policy") == f"runs/{name}_export"]
+        assert seeds == [str(s) for s in range(1000, 1006)]
+    curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
+                 and a[2].endswith("learning_curve_kept.png"))
+    assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
+                         "100%=960=results/prelude_stacked_mix/shipped"]
