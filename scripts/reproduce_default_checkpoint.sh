@@ -1302,7 +1302,8 @@ fi
 #     weights, on step 30's 96 demonstrations and on step 62's 288 (step 61's proportions; collected here unless
 #     step 62 did); each checked as a bind is, exported and evaluated on six seeds
 #     -> results/data_efficiency/keptNN_seedS.json, grounding_check_keptNN.md, keptNN_follow.summary.json, and the
-#     curve of both arms with the shipped model, learning_curve_kept.{md,png}
+#     curve of both arms with the shipped model, learning_curve_kept.{md,png}; the 10% arm 3700 steps more
+#     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
     local data=$1 name=$2
@@ -1321,6 +1322,11 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   fi
   kept_grounding_arm "$DATA10" kept10
   kept_grounding_arm "$MIX288" kept30
+  # Short of steps? The 10% arm followed 3700 steps more, seed 2.
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/kept10_follow2" --init "$RUNS/kept10_follow/final" \
+      --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/kept10_follow2/final" --out "$RUNS/kept10_follow2_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/kept10_follow2_export" results/data_efficiency/kept10_longer
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md

@@ -803,6 +803,14 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         assert export[1] == f"runs/{name}_follow/final" and "--drop-unused-llm-layers" in export
         seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and option(a, "--policy") == f"runs/{name}_export"]
         assert seeds == [str(s) for s in range(1000, 1006)]
+    # and the 10% arm followed on to step 30's stored arm's 8200 steps
+    longer = run_writing(calls, "runs/kept10_follow2")
+    assert option(longer, "--init") == "runs/kept10_follow/final" and "--fresh-system1" not in longer
+    assert option(longer, "--data") == data["kept10"] and option(longer, "--grounding-phase") == "follow"
+    step30_runs = [run_writing(calls, f"runs/data10_{phase}") for phase in ("joint", "bind", "follow", "follow2")]
+    assert int(option(longer, "--steps")) + 4500 == sum(int(option(argv, "--steps")) for argv in step30_runs)
+    assert [option(a, "--seed") for a in calls if a[0] == "evaluate"
+            and option(a, "--policy") == "runs/kept10_follow2_export"] == [str(s) for s in range(1000, 1006)]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
