@@ -1303,7 +1303,8 @@ fi
 #     step 62 did); each checked as a bind is, exported and evaluated on six seeds
 #     -> results/data_efficiency/keptNN_seedS.json, grounding_check_keptNN.md, keptNN_follow.summary.json, and the
 #     curve of both arms with the shipped model, learning_curve_kept.{md,png}; the 10% arm 3700 steps more
-#     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json
+#     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json;
+#     the paired comparisons kept_compare.{md,png} and kept10_longer_compare.{md,png}
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
     local data=$1 name=$2
@@ -1326,7 +1327,15 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/kept10_follow2" --init "$RUNS/kept10_follow/final" \
       --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/kept10_follow2/final" --out "$RUNS/kept10_follow2_export" --drop-unused-llm-layers
+  cp "$RUNS/kept10_follow2/summary.json" results/data_efficiency/kept10_follow2.summary.json
   six_seeds "$RUNS/kept10_follow2_export" results/data_efficiency/kept10_longer
+  KD=results/data_efficiency
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_compare.png" \
+      "10% fresh bind (step 30, 8200 steps)=$KD/data10_longer" "10% shipped grounding kept (4500 steps)=$KD/kept10" \
+      "30% shipped grounding kept (4500 steps)=$KD/kept30" "100% shipped=results/prelude_stacked_mix/shipped" \
+      > "$KD/kept_compare.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept10_longer_compare.png" \
+      "kept10=$KD/kept10" "kept10 longer=$KD/kept10_longer" "fresh=$KD/data10_longer" > "$KD/kept10_longer_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md

@@ -811,6 +811,13 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
     assert int(option(longer, "--steps")) + 4500 == sum(int(option(argv, "--steps")) for argv in step30_runs)
     assert [option(a, "--seed") for a in calls if a[0] == "evaluate"
             and option(a, "--policy") == "runs/kept10_follow2_export"] == [str(s) for s in range(1000, 1006)]
+    compares = {a[2]: a[3:] for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                and a[2].startswith("results/data_efficiency/kept")}
+    kd = "results/data_efficiency"
+    assert [arm.split("=")[1] for arm in compares[f"{kd}/kept_compare.png"]] == \
+        [f"{kd}/data10_longer", f"{kd}/kept10", f"{kd}/kept30", "results/prelude_stacked_mix/shipped"]
+    assert [arm.split("=")[1] for arm in compares[f"{kd}/kept10_longer_compare.png"]] == \
+        [f"{kd}/kept10", f"{kd}/kept10_longer", f"{kd}/data10_longer"]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
