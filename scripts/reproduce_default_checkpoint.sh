@@ -1295,7 +1295,7 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
   trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
   bind_from_shipped mix288 --data "$MIX288"
 fi
-# 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, session 62; about 1 h 45 min here): the data curve
+# 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, sessions 62-63; about 3 h here): the data curve
 #     with the shipped instruction grounding kept, as the paper's small-data arm keeps its pretrained VLM. A fresh
 #     System 1 (--fresh-system1, seed 1) but for the shipped grounding and the feature statistics it was bound on
 #     (--grounding-phase follow keeps them), followed 4500 steps (step 30's joint and follow together) with averaged
@@ -1303,8 +1303,9 @@ fi
 #     step 62 did); each checked as a bind is, exported and evaluated on six seeds
 #     -> results/data_efficiency/keptNN_seedS.json, grounding_check_keptNN.md, keptNN_follow.summary.json, and the
 #     curve of both arms with the shipped model, learning_curve_kept.{md,png}; the 10% arm 3700 steps more
-#     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json;
-#     the paired comparisons kept_compare.{md,png} and kept10_longer_compare.{md,png}
+#     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json,
+#     and the 30% arm as much (session 63) -> kept30_longer_seedS.json; the paired comparisons kept_compare,
+#     kept10_longer_compare and kept_longer_compare (.md, .png), and the curve at 8200 steps learning_curve_kept_8200
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
     local data=$1 name=$2
@@ -1323,12 +1324,17 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   fi
   kept_grounding_arm "$DATA10" kept10
   kept_grounding_arm "$MIX288" kept30
-  # Short of steps? The 10% arm followed 3700 steps more, seed 2.
-  trivla-drake "${GROUNDED_POLICY[@]}" --data "$DATA10" --out "$RUNS/kept10_follow2" --init "$RUNS/kept10_follow/final" \
-      --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
-  trivla-drake export "$RUNS/kept10_follow2/final" --out "$RUNS/kept10_follow2_export" --drop-unused-llm-layers
-  cp "$RUNS/kept10_follow2/summary.json" results/data_efficiency/kept10_follow2.summary.json
-  six_seeds "$RUNS/kept10_follow2_export" results/data_efficiency/kept10_longer
+  # Short of steps? Each arm followed 3700 steps more, seed 2 (the 10% arm in session 62-63, the 30% arm in 63).
+  kept_grounding_longer() {  # kept_grounding_longer DATA NAME -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
+    local data=$1 name=$2
+    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow2" --init "$RUNS/${name}_follow/final" \
+        --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
+    trivla-drake export "$RUNS/${name}_follow2/final" --out "$RUNS/${name}_follow2_export" --drop-unused-llm-layers
+    cp "$RUNS/${name}_follow2/summary.json" "results/data_efficiency/${name}_follow2.summary.json"
+    six_seeds "$RUNS/${name}_follow2_export" "results/data_efficiency/${name}_longer"
+  }
+  kept_grounding_longer "$DATA10" kept10
+  kept_grounding_longer "$MIX288" kept30
   KD=results/data_efficiency
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_compare.png" \
       "10% fresh bind (step 30, 8200 steps)=$KD/data10_longer" "10% shipped grounding kept (4500 steps)=$KD/kept10" \
@@ -1336,7 +1342,13 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
       > "$KD/kept_compare.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept10_longer_compare.png" \
       "kept10=$KD/kept10" "kept10 longer=$KD/kept10_longer" "fresh=$KD/data10_longer" > "$KD/kept10_longer_compare.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_longer_compare.png" \
+      "10% kept, 8200 steps=$KD/kept10_longer" "30% kept, 8200 steps=$KD/kept30_longer" \
+      "30% kept, 4500 steps=$KD/kept30" > "$KD/kept_longer_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept_8200.png \
+      "10% kept=96=results/data_efficiency/kept10_longer" "30% kept=288=results/data_efficiency/kept30_longer" \
+      "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept_8200.md
 fi

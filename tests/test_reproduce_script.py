@@ -803,14 +803,15 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         assert export[1] == f"runs/{name}_follow/final" and "--drop-unused-llm-layers" in export
         seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and option(a, "--policy") == f"runs/{name}_export"]
         assert seeds == [str(s) for s in range(1000, 1006)]
-    # and the 10% arm followed on to step 30's stored arm's 8200 steps
-    longer = run_writing(calls, "runs/kept10_follow2")
-    assert option(longer, "--init") == "runs/kept10_follow/final" and "--fresh-system1" not in longer
-    assert option(longer, "--data") == data["kept10"] and option(longer, "--grounding-phase") == "follow"
+    # and both arms followed on to step 30's stored arm's 8200 steps
     step30_runs = [run_writing(calls, f"runs/data10_{phase}") for phase in ("joint", "bind", "follow", "follow2")]
-    assert int(option(longer, "--steps")) + 4500 == sum(int(option(argv, "--steps")) for argv in step30_runs)
-    assert [option(a, "--seed") for a in calls if a[0] == "evaluate"
-            and option(a, "--policy") == "runs/kept10_follow2_export"] == [str(s) for s in range(1000, 1006)]
+    for name, expected_data in data.items():
+        longer = run_writing(calls, f"runs/{name}_follow2")
+        assert option(longer, "--init") == f"runs/{name}_follow/final" and "--fresh-system1" not in longer
+        assert option(longer, "--data") == expected_data and option(longer, "--grounding-phase") == "follow"
+        assert int(option(longer, "--steps")) + 4500 == sum(int(option(argv, "--steps")) for argv in step30_runs)
+        assert [option(a, "--seed") for a in calls if a[0] == "evaluate"
+                and option(a, "--policy") == f"runs/{name}_follow2_export"] == [str(s) for s in range(1000, 1006)]
     compares = {a[2]: a[3:] for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
                 and a[2].startswith("results/data_efficiency/kept")}
     kd = "results/data_efficiency"
@@ -818,7 +819,14 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         [f"{kd}/data10_longer", f"{kd}/kept10", f"{kd}/kept30", "results/prelude_stacked_mix/shipped"]
     assert [arm.split("=")[1] for arm in compares[f"{kd}/kept10_longer_compare.png"]] == \
         [f"{kd}/kept10", f"{kd}/kept10_longer", f"{kd}/data10_longer"]
+    assert [arm.split("=")[1] for arm in compares[f"{kd}/kept_longer_compare.png"]] == \
+        [f"{kd}/kept10_longer", f"{kd}/kept30_longer", f"{kd}/kept30"]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
                          "100%=960=results/prelude_stacked_mix/shipped"]
+    curve_8200 = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
+                      and a[2].endswith("learning_curve_kept_8200.png"))
+    assert curve_8200[3:] == ["10% kept=96=results/data_efficiency/kept10_longer",
+                              "30% kept=288=results/data_efficiency/kept30_longer",
+                              "100%=960=results/prelude_stacked_mix/shipped"]
