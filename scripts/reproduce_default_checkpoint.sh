@@ -1295,7 +1295,7 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
   trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
   bind_from_shipped mix288 --data "$MIX288"
 fi
-# 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, sessions 62-63; about 3 h here): the data curve
+# 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, sessions 62-63; about 4 h here): the data curve
 #     with the shipped instruction grounding kept, as the paper's small-data arm keeps its pretrained VLM. A fresh
 #     System 1 (--fresh-system1, seed 1) but for the shipped grounding and the feature statistics it was bound on
 #     (--grounding-phase follow keeps them), followed 4500 steps (step 30's joint and follow together) with averaged
@@ -1305,7 +1305,9 @@ fi
 #     curve of both arms with the shipped model, learning_curve_kept.{md,png}; the 10% arm 3700 steps more
 #     (8200 in all, as step 30's stored arm counts its joint, bind and two follows) -> kept10_longer_seedS.json,
 #     and the 30% arm as much (session 63) -> kept30_longer_seedS.json; the paired comparisons kept_compare,
-#     kept10_longer_compare and kept_longer_compare (.md, .png), and the curve at 8200 steps learning_curve_kept_8200
+#     kept10_longer_compare and kept_longer_compare (.md, .png), and the curve at 8200 steps learning_curve_kept_8200;
+#     and an arm on step 62's 360 clean demonstrations, all from the start posture (session 63) -> keptclean360_*,
+#     kept_clean_compare.{md,png}
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
     local data=$1 name=$2
@@ -1324,6 +1326,13 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   fi
   kept_grounding_arm "$DATA10" kept10
   kept_grounding_arm "$MIX288" kept30
+  # Data of the evaluated kind (session 63): 360 demonstrations all from the start posture (step 62's, collected
+  # here unless step 62 did) against the 30% arm's 108 clean and 180 after a prelude, at the same 4500 steps.
+  CLEAN360=${CLEAN360:-$DATA-clean360}
+  if [[ ! -d "$CLEAN360" ]]; then
+    trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
+  fi
+  kept_grounding_arm "$CLEAN360" keptclean360
   # Short of steps? Each arm followed 3700 steps more, seed 2 (the 10% arm in session 62-63, the 30% arm in 63).
   kept_grounding_longer() {  # kept_grounding_longer DATA NAME -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
     local data=$1 name=$2
@@ -1345,6 +1354,9 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_longer_compare.png" \
       "10% kept, 8200 steps=$KD/kept10_longer" "30% kept, 8200 steps=$KD/kept30_longer" \
       "30% kept, 4500 steps=$KD/kept30" > "$KD/kept_longer_compare.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_clean_compare.png" \
+      "288 mixed, 4500 steps=$KD/kept30" "360 clean, 4500 steps=$KD/keptclean360" \
+      "288 mixed, 8200 steps=$KD/kept30_longer" > "$KD/kept_clean_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md

@@ -27,8 +27,9 @@ def calls(every_call) -> list[list[str]]:
     return [argv for argv in every_call if argv[0] != "python"]
 
 
-def _dry_run(tmp_path: Path) -> list[list[str]]:
-    """Run the script with `trivla-drake` and its Python replaced by recorders; returns each call's arguments."""
+def _dry_run(tmp_path: Path, skip: tuple[str, ...] = ()) -> list[list[str]]:
+    """Run the script with `trivla-drake` and its Python replaced by recorders; returns each call's arguments.
+    `skip` names optional steps' switches left unset."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     calls = tmp_path / "calls.txt"
@@ -61,6 +62,7 @@ def _dry_run(tmp_path: Path) -> list[list[str]]:
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
            "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1", "KEPT_GROUNDING": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
+    env = {key: value for key, value in env.items() if key not in skip}
     (work / "data" / "sim").mkdir()
     (work / "data" / "sim-prelude").mkdir()  # step 22 copies what step 21 collected
     (work / "models" / "trivla_cpu").mkdir(parents=True)  # step 41 copies the soup it wrote
@@ -790,7 +792,8 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
     step30_joint, step30_follow = run_writing(calls, "runs/data10_joint"), run_writing(calls, "runs/data10_follow")
     data = {"kept10": option(step30_follow, "--data"),
             "kept30": option(run_writing(calls, "runs/shippedbind_mix288"), "--data")}
-    for name, expected_data in data.items():
+    clean = {"keptclean360": option(run_writing(calls, "runs/shippedbind_clean360"), "--data")}
+    for name, expected_data in {**data, **clean}.items():
         follow = run_writing(calls, f"runs/{name}_follow")
         assert option(follow, "--data") == expected_data
         assert option(follow, "--init") == "models/trivla_cpu" and "--fresh-system1" in follow
@@ -821,6 +824,8 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         [f"{kd}/kept10", f"{kd}/kept10_longer", f"{kd}/data10_longer"]
     assert [arm.split("=")[1] for arm in compares[f"{kd}/kept_longer_compare.png"]] == \
         [f"{kd}/kept10_longer", f"{kd}/kept30_longer", f"{kd}/kept30"]
+    assert [arm.split("=")[1] for arm in compares[f"{kd}/kept_clean_compare.png"]] == \
+        [f"{kd}/kept30", f"{kd}/keptclean360", f"{kd}/kept30_longer"]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
@@ -830,3 +835,20 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
     assert curve_8200[3:] == ["10% kept=96=results/data_efficiency/kept10_longer",
                               "30% kept=288=results/data_efficiency/kept30_longer",
                               "100%=960=results/prelude_stacked_mix/shipped"]
+
+
+def test_step_63_collects_the_data_step_62_would_have_left_when_run_without_it(tmp_path):
+    """KEPT_GROUNDING without BIND_COUNTS: step 63 collects step 62's 288 mixed and 360 clean demonstrations
+    itself, once each, before its arms train on them."""
+    calls = [argv for argv in _dry_run(tmp_path, skip=("BIND_COUNTS",)) if argv[0] != "python"]
+    collects = {}
+    for argv in calls:
+        if argv[0] == "collect":
+            collects.setdefault(option(argv, "--out"), []).append(argv)
+    assert [option(a, "--episodes-per-task") for a in collects["data/sim-mix288"]] == ["9", "24"]
+    assert [option(a, "--episodes-per-task") for a in collects["data/sim-clean360"]] == ["30"]
+    assert "--prelude-tasks" not in collects["data/sim-clean360"][0]
+    for name, data in (("kept30", "data/sim-mix288"), ("keptclean360", "data/sim-clean360")):
+        follow = run_writing(calls, f"runs/{name}_follow")
+        assert option(follow, "--data") == data
+        assert calls.index(collects[data][-1]) < calls.index(follow)
