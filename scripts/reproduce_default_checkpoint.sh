@@ -1307,7 +1307,8 @@ fi
 #     and the 30% arm as much (session 63) -> kept30_longer_seedS.json; the paired comparisons kept_compare,
 #     kept10_longer_compare and kept_longer_compare (.md, .png), and the curve at 8200 steps learning_curve_kept_8200;
 #     and an arm on step 62's 360 clean demonstrations, all from the start posture (session 63) -> keptclean360_*,
-#     kept_clean_compare.{md,png}
+#     kept_clean_compare.{md,png}; that arm's and the 30% arm's (at 8200 steps) 40 chains -> *_chains20_seedS.json,
+#     kept_chains_compare.{md,png}
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
     local data=$1 name=$2
@@ -1333,6 +1334,8 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
     trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
   fi
   kept_grounding_arm "$CLEAN360" keptclean360
+  # Do the prelude demonstrations count in chains? The clean arm and the mixed one at 8200 steps, 40 chains each.
+  forty_chains "$RUNS/keptclean360_export" results/data_efficiency/keptclean360
   # Short of steps? Each arm followed 3700 steps more, seed 2 (the 10% arm in session 62-63, the 30% arm in 63).
   kept_grounding_longer() {  # kept_grounding_longer DATA NAME -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
     local data=$1 name=$2
@@ -1344,6 +1347,7 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   }
   kept_grounding_longer "$DATA10" kept10
   kept_grounding_longer "$MIX288" kept30
+  forty_chains "$RUNS/kept30_follow2_export" results/data_efficiency/kept30_longer
   KD=results/data_efficiency
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_compare.png" \
       "10% fresh bind (step 30, 8200 steps)=$KD/data10_longer" "10% shipped grounding kept (4500 steps)=$KD/kept10" \
@@ -1357,6 +1361,9 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_clean_compare.png" \
       "288 mixed, 4500 steps=$KD/kept30" "360 clean, 4500 steps=$KD/keptclean360" \
       "288 mixed, 8200 steps=$KD/kept30_longer" > "$KD/kept_clean_compare.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1004 "$KD/kept_chains_compare.png" \
+      "288 mixed, 8200 steps=$KD/kept30_longer" "360 clean, 4500 steps=$KD/keptclean360" \
+      "100% shipped=results/prelude_stacked_mix/shipped" > "$KD/kept_chains_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md

@@ -804,7 +804,8 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         assert ["probe", "--checkpoint", f"runs/{name}_follow/final", "--grounding-scenes", "10", "--threads", "2"] in calls
         export = run_writing(calls, f"runs/{name}_export")
         assert export[1] == f"runs/{name}_follow/final" and "--drop-unused-llm-layers" in export
-        seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and option(a, "--policy") == f"runs/{name}_export"]
+        seeds = [option(a, "--seed") for a in calls if a[0] == "evaluate" and "--chains" not in a
+                 and option(a, "--policy") == f"runs/{name}_export"]
         assert seeds == [str(s) for s in range(1000, 1006)]
     # and both arms followed on to step 30's stored arm's 8200 steps
     step30_runs = [run_writing(calls, f"runs/data10_{phase}") for phase in ("joint", "bind", "follow", "follow2")]
@@ -813,7 +814,7 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         assert option(longer, "--init") == f"runs/{name}_follow/final" and "--fresh-system1" not in longer
         assert option(longer, "--data") == expected_data and option(longer, "--grounding-phase") == "follow"
         assert int(option(longer, "--steps")) + 4500 == sum(int(option(argv, "--steps")) for argv in step30_runs)
-        assert [option(a, "--seed") for a in calls if a[0] == "evaluate"
+        assert [option(a, "--seed") for a in calls if a[0] == "evaluate" and "--chains" not in a
                 and option(a, "--policy") == f"runs/{name}_follow2_export"] == [str(s) for s in range(1000, 1006)]
     compares = {a[2]: a[3:] for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
                 and a[2].startswith("results/data_efficiency/kept")}
@@ -826,6 +827,15 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         [f"{kd}/kept10_longer", f"{kd}/kept30_longer", f"{kd}/kept30"]
     assert [arm.split("=")[1] for arm in compares[f"{kd}/kept_clean_compare.png"]] == \
         [f"{kd}/kept30", f"{kd}/keptclean360", f"{kd}/kept30_longer"]
+    chain_compare = next(a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
+                         and a[4:5] == [f"{kd}/kept_chains_compare.png"])
+    assert chain_compare[2:4] == ["--chain-seeds", "1003-1004"]
+    assert [arm.split("=")[1] for arm in chain_compare[5:]] == \
+        [f"{kd}/kept30_longer", f"{kd}/keptclean360", "results/prelude_stacked_mix/shipped"]
+    for policy in ("runs/keptclean360_export", "runs/kept30_follow2_export"):  # 20 chains on each of two seeds
+        chains = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == policy and "--chains" in a]
+        assert [(option(a, "--seed"), option(a, "--chains"), option(a, "--episodes")) for a in chains] == \
+            [("1003", "20", "0"), ("1004", "20", "0")]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
