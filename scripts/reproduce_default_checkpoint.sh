@@ -1363,7 +1363,7 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
       "288 mixed, 8200 steps=$KD/kept30_longer" > "$KD/kept_clean_compare.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1004 "$KD/kept_chains_compare.png" \
       "288 mixed, 8200 steps=$KD/kept30_longer" "360 clean, 4500 steps=$KD/keptclean360" \
-      "100% shipped=results/prelude_stacked_mix/shipped" > "$KD/kept_chains_compare.md"
+      "100% shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped" > "$KD/kept_chains_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \
       "10% kept=96=results/data_efficiency/kept10" "30% kept=288=results/data_efficiency/kept30" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept.md

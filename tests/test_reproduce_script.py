@@ -831,7 +831,8 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
                          and a[4:5] == [f"{kd}/kept_chains_compare.png"])
     assert chain_compare[2:4] == ["--chain-seeds", "1003-1004"]
     assert [arm.split("=")[1] for arm in chain_compare[5:]] == \
-        [f"{kd}/kept30_longer", f"{kd}/keptclean360", "results/prelude_stacked_mix/shipped"]
+        [f"{kd}/kept30_longer", f"{kd}/keptclean360",
+         "results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"]  # its chains are in the second
     for policy in ("runs/keptclean360_export", "runs/kept30_follow2_export"):  # 20 chains on each of two seeds
         chains = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == policy and "--chains" in a]
         assert [(option(a, "--seed"), option(a, "--chains"), option(a, "--episodes")) for a in chains] == \
