@@ -74,6 +74,13 @@ forty_chains() {  # forty_chains POLICY PREFIX: 20 five-task chains on each of s
         > "${prefix}_chains20_seed$seed.json"
   done
 }
+eighty_chains() {  # eighty_chains POLICY PREFIX: 20 five-task chains on each of seeds 1003-1006 -> PREFIX_chains20_seedS.json
+  local policy=$1 prefix=$2 seed
+  for seed in 1003 1004 1005 1006; do
+    trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
+        > "${prefix}_chains20_seed$seed.json"
+  done
+}
 held_stacked_refit() {  # held_stacked_refit RUN REPORT [flags...]: the shipped grounding's read-out re-fitted on
   #   step 58's rendered scenes with 40% of each batch from the stacked picks, the other samples' sub-goals held
   #   (--hold 1 unless a flag says otherwise; steps 59-60) -> RUN, REPORT.json
@@ -84,13 +91,10 @@ held_stacked_refit() {  # held_stacked_refit RUN REPORT [flags...]: the shipped 
 }
 stacked_refit_evaluations() {  # stacked_refit_evaluations POLICY PREFIX: its stacked picks and usual scenes on seeds
   #   1000-1005 and 80 chains (seeds 1003-1006) -> PREFIX_stacked_picks_seedS.json, PREFIX_seedS.json, PREFIX_chains20_seedS.json
-  local policy=$1 prefix=$2 seed
+  local policy=$1 prefix=$2
   stacked_six_seeds "$policy" "${prefix}_stacked_picks"
   six_seeds "$policy" "$prefix"
-  for seed in 1003 1004 1005 1006; do
-    trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
-        > "${prefix}_chains20_seed$seed.json"
-  done
+  eighty_chains "$policy" "$prefix"
 }
 arm() {  # arm NAME INIT SEED [flags...]: the 3000-step run NAME_3k, then the 6000-step run NAME with SEED.
   local name=$1 init=$2 seed=$3
@@ -1307,7 +1311,7 @@ fi
 #     and the 30% arm as much (session 63) -> kept30_longer_seedS.json; the paired comparisons kept_compare,
 #     kept10_longer_compare and kept_longer_compare (.md, .png), and the curve at 8200 steps learning_curve_kept_8200;
 #     and an arm on step 62's 360 clean demonstrations, all from the start posture (session 63) -> keptclean360_*,
-#     kept_clean_compare.{md,png}; that arm's and the 30% arm's (at 8200 steps) 40 chains -> *_chains20_seedS.json,
+#     kept_clean_compare.{md,png}; that arm's and the 30% arm's (at 8200 steps) 80 chains -> *_chains20_seedS.json,
 #     kept_chains_compare.{md,png}
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
@@ -1334,8 +1338,8 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
     trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
   fi
   kept_grounding_arm "$CLEAN360" keptclean360
-  # Do the prelude demonstrations count in chains? The clean arm and the mixed one at 8200 steps, 40 chains each.
-  forty_chains "$RUNS/keptclean360_export" results/data_efficiency/keptclean360
+  # Do the prelude demonstrations count in chains? The clean arm and the mixed one at 8200 steps, 80 chains each.
+  eighty_chains "$RUNS/keptclean360_export" results/data_efficiency/keptclean360
   # Short of steps? Each arm followed 3700 steps more, seed 2 (the 10% arm in session 62-63, the 30% arm in 63).
   kept_grounding_longer() {  # kept_grounding_longer DATA NAME -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
     local data=$1 name=$2
@@ -1347,7 +1351,7 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   }
   kept_grounding_longer "$DATA10" kept10
   kept_grounding_longer "$MIX288" kept30
-  forty_chains "$RUNS/kept30_follow2_export" results/data_efficiency/kept30_longer
+  eighty_chains "$RUNS/kept30_follow2_export" results/data_efficiency/kept30_longer
   KD=results/data_efficiency
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_compare.png" \
       "10% fresh bind (step 30, 8200 steps)=$KD/data10_longer" "10% shipped grounding kept (4500 steps)=$KD/kept10" \
@@ -1361,7 +1365,7 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept_clean_compare.png" \
       "288 mixed, 4500 steps=$KD/kept30" "360 clean, 4500 steps=$KD/keptclean360" \
       "288 mixed, 8200 steps=$KD/kept30_longer" > "$KD/kept_clean_compare.md"
-  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1004 "$KD/kept_chains_compare.png" \
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$KD/kept_chains_compare.png" \
       "288 mixed, 8200 steps=$KD/kept30_longer" "360 clean, 4500 steps=$KD/keptclean360" \
       "100% shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped" > "$KD/kept_chains_compare.md"
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept.png \

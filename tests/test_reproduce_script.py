@@ -829,14 +829,14 @@ def test_step_63_follows_a_fresh_system1_on_the_shipped_grounding_at_10_and_30_p
         [f"{kd}/kept30", f"{kd}/keptclean360", f"{kd}/kept30_longer"]
     chain_compare = next(a for a in every_call if a[:2] == ["python", "results/follow_control/compare_seeds.py"]
                          and a[4:5] == [f"{kd}/kept_chains_compare.png"])
-    assert chain_compare[2:4] == ["--chain-seeds", "1003-1004"]
+    assert chain_compare[2:4] == ["--chain-seeds", "1003-1006"]
     assert [arm.split("=")[1] for arm in chain_compare[5:]] == \
         [f"{kd}/kept30_longer", f"{kd}/keptclean360",
          "results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped"]  # its chains are in the second
-    for policy in ("runs/keptclean360_export", "runs/kept30_follow2_export"):  # 20 chains on each of two seeds
+    for policy in ("runs/keptclean360_export", "runs/kept30_follow2_export"):  # 20 chains on each of four seeds
         chains = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == policy and "--chains" in a]
         assert [(option(a, "--seed"), option(a, "--chains"), option(a, "--episodes")) for a in chains] == \
-            [("1003", "20", "0"), ("1004", "20", "0")]
+            [(str(seed), "20", "0") for seed in range(1003, 1007)]
     curve = next(a for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]
                  and a[2].endswith("learning_curve_kept.png"))
     assert curve[3:] == ["10% kept=96=results/data_efficiency/kept10", "30% kept=288=results/data_efficiency/kept30",
