@@ -67,19 +67,22 @@ fresh_system1_arm() {  # fresh_system1_arm DATA NAME [JOINT BIND FOLLOW]: a fres
       --grounding-phase follow --lr 3e-4 --steps "$follow_steps" --seed 1 --subgoal-offset --ema-decay 0.999
   trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
 }
-forty_chains() {  # forty_chains POLICY PREFIX: 20 five-task chains on each of seeds 1003 and 1004 -> PREFIX_chains20_seedS.json
-  local policy=$1 prefix=$2
-  for seed in 1003 1004; do
+chains20() {  # chains20 POLICY PREFIX SEED...: 20 five-task chains on each SEED -> PREFIX_chains20_seedS.json
+  local policy=$1 prefix=$2 seed
+  shift 2
+  for seed in "$@"; do
     trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
         > "${prefix}_chains20_seed$seed.json"
   done
 }
-eighty_chains() {  # eighty_chains POLICY PREFIX: 20 five-task chains on each of seeds 1003-1006 -> PREFIX_chains20_seedS.json
-  local policy=$1 prefix=$2 seed
-  for seed in 1003 1004 1005 1006; do
-    trivla-drake evaluate --policy "$policy" --episodes 0 --chains 20 --seed "$seed" --workers 2 --no-progress --json \
-        > "${prefix}_chains20_seed$seed.json"
-  done
+forty_chains() { chains20 "$1" "$2" 1003 1004; }  # forty_chains POLICY PREFIX: seeds 1003 and 1004
+eighty_chains() { chains20 "$1" "$2" 1003 1004 1005 1006; }  # eighty_chains POLICY PREFIX: seeds 1003-1006
+collect_clean360() {  # collect_clean360 OUT: 30 demonstrations a task from the start posture (steps 62-63)
+  trivla-drake collect --out "$1" --episodes-per-task 30 --workers 2 --no-progress
+}
+collect_mix288() {  # collect_mix288 OUT: 9 a task from the start posture and 24 after a chain prelude (step 61's share)
+  trivla-drake collect --out "$1" --episodes-per-task 9 --workers 2 --no-progress
+  trivla-drake collect --out "$1" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
 }
 held_stacked_refit() {  # held_stacked_refit RUN REPORT [flags...]: the shipped grounding's read-out re-fitted on
   #   step 58's rendered scenes with 40% of each batch from the stacked picks, the other samples' sub-goals held
@@ -1018,10 +1021,7 @@ if [[ "${WEAK_PRELUDES:-0}" == 1 ]]; then
     trivla-drake evaluate --policy "$RUNS/weakfollow_export" --episodes 2 --prelude 1 --seed "$seed" --workers 2 \
         --no-progress --json > "$WP/weak_prelude1_seed$seed.json"
   done
-  for seed in 1003 1004 1005 1006; do
-    trivla-drake evaluate --policy "$RUNS/weakfollow_export" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
-        --no-progress --json > "$WP/weak_chains20_seed$seed.json"
-  done
+  eighty_chains "$RUNS/weakfollow_export" "$WP/weak"
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/weakfollow_export" "$WP/weak"
   chain_positions "$WP/weak" "$WP/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$WP/compare.png" \
@@ -1037,10 +1037,7 @@ if [[ "${MORE_SCENES:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/grounding_scenes/refit_grounding.py models/trivla_cpu "$DATA" "$RUNS/refit30k" \
       --scenes 30000 --steps 3000 --lr 3e-4 --report "$MS/refit30k"
   EVAL_SEEDS=$(seq -s ' ' 1000 1017) six_seeds "$RUNS/refit30k" "$MS/refit30k"
-  for seed in 1003 1004 1005 1006; do
-    trivla-drake evaluate --policy "$RUNS/refit30k" --episodes 0 --chains 20 --seed "$seed" --workers 2 \
-        --no-progress --json > "$MS/refit30k_chains20_seed$seed.json"
-  done
+  eighty_chains "$RUNS/refit30k" "$MS/refit30k"
   preludes "$RUNS/refit30k" "$MS/refit30k"
   chain_positions "$MS/refit30k" "$MS/chain_positions.md"
   "${PYTHON:-python}" results/follow_control/compare_seeds.py --seeds 1000-1017 "$MS/compare.png" \
@@ -1290,13 +1287,12 @@ if [[ "${BIND_COUNTS:-0}" == 1 ]]; then
   }
   CLEAN360=${CLEAN360:-$DATA-clean360}
   MIX288=${MIX288:-$DATA-mix288}
-  trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
+  collect_clean360 "$CLEAN360"
   bind_from_shipped clean360 --data "$CLEAN360"
   for fraction in 0.8 0.5 0.3; do
     bind_from_shipped "clean360_f$fraction" --data "$CLEAN360" --fraction "$fraction"
   done
-  trivla-drake collect --out "$MIX288" --episodes-per-task 9 --workers 2 --no-progress
-  trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
+  collect_mix288 "$MIX288"
   bind_from_shipped mix288 --data "$MIX288"
 fi
 # 63. Optional (KEPT_GROUNDING=1; results/data_efficiency/, sessions 62-63; about 4 h here): the data curve
@@ -1325,18 +1321,13 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
     six_seeds "$RUNS/${name}_export" "results/data_efficiency/$name"
   }
   MIX288=${MIX288:-$DATA-mix288}
-  if [[ ! -d "$MIX288" ]]; then
-    trivla-drake collect --out "$MIX288" --episodes-per-task 9 --workers 2 --no-progress
-    trivla-drake collect --out "$MIX288" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
-  fi
+  [[ -d "$MIX288" ]] || collect_mix288 "$MIX288"
   kept_grounding_arm "$DATA10" kept10
   kept_grounding_arm "$MIX288" kept30
   # Data of the evaluated kind (session 63): 360 demonstrations all from the start posture (step 62's, collected
   # here unless step 62 did) against the 30% arm's 108 clean and 180 after a prelude, at the same 4500 steps.
   CLEAN360=${CLEAN360:-$DATA-clean360}
-  if [[ ! -d "$CLEAN360" ]]; then
-    trivla-drake collect --out "$CLEAN360" --episodes-per-task 30 --workers 2 --no-progress
-  fi
+  [[ -d "$CLEAN360" ]] || collect_clean360 "$CLEAN360"
   kept_grounding_arm "$CLEAN360" keptclean360
   # Do the prelude demonstrations count in chains? The clean arm and the mixed one at 8200 steps, 80 chains each.
   eighty_chains "$RUNS/keptclean360_export" results/data_efficiency/keptclean360
