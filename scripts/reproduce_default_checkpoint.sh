@@ -84,6 +84,28 @@ collect_mix288() {  # collect_mix288 OUT: 9 a task from the start posture and 24
   trivla-drake collect --out "$1" --episodes-per-task 9 --workers 2 --no-progress
   trivla-drake collect --out "$1" --episodes-per-task 24 --prelude-tasks 4 --workers 2 --no-progress
 }
+kept_grounding_arm() {  # kept_grounding_arm DATA NAME [flags...]: a fresh System 1 on the shipped grounding, 4500
+  #   steps (steps 63-64) -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
+  local data=$1 name=$2
+  shift 2
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" "$@" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
+      --fresh-system1 --grounding-phase follow --lr 3e-4 --steps 4500 --seed 1 --subgoal-offset --ema-decay 0.999
+  cp "$RUNS/${name}_follow/summary.json" "results/data_efficiency/${name}_follow.summary.json"
+  trivla-drake probe --checkpoint "$RUNS/${name}_follow/final" --grounding-scenes 10 --threads 2 \
+      > "results/data_efficiency/grounding_check_$name.md"
+  trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
+  six_seeds "$RUNS/${name}_export" "results/data_efficiency/$name"
+}
+kept_grounding_longer() {  # kept_grounding_longer DATA NAME [flags...]: that arm 3700 steps more, seed 2 (8200 in all;
+  #   steps 63-64) -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
+  local data=$1 name=$2
+  shift 2
+  trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" "$@" --out "$RUNS/${name}_follow2" --init "$RUNS/${name}_follow/final" \
+      --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
+  trivla-drake export "$RUNS/${name}_follow2/final" --out "$RUNS/${name}_follow2_export" --drop-unused-llm-layers
+  cp "$RUNS/${name}_follow2/summary.json" "results/data_efficiency/${name}_follow2.summary.json"
+  six_seeds "$RUNS/${name}_follow2_export" "results/data_efficiency/${name}_longer"
+}
 held_stacked_refit() {  # held_stacked_refit RUN REPORT [flags...]: the shipped grounding's read-out re-fitted on
   #   step 58's rendered scenes with 40% of each batch from the stacked picks, the other samples' sub-goals held
   #   (--hold 1 unless a flag says otherwise; steps 59-60) -> RUN, REPORT.json
@@ -1310,16 +1332,6 @@ fi
 #     kept_clean_compare.{md,png}; that arm's and the 30% arm's (at 8200 steps) 80 chains -> *_chains20_seedS.json,
 #     kept_chains_compare.{md,png}
 if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
-  kept_grounding_arm() {  # kept_grounding_arm DATA NAME -> RUNS/NAME_{follow,export}, results/data_efficiency/NAME_*
-    local data=$1 name=$2
-    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow" --init models/trivla_cpu \
-        --fresh-system1 --grounding-phase follow --lr 3e-4 --steps 4500 --seed 1 --subgoal-offset --ema-decay 0.999
-    cp "$RUNS/${name}_follow/summary.json" "results/data_efficiency/${name}_follow.summary.json"
-    trivla-drake probe --checkpoint "$RUNS/${name}_follow/final" --grounding-scenes 10 --threads 2 \
-        > "results/data_efficiency/grounding_check_$name.md"
-    trivla-drake export "$RUNS/${name}_follow/final" --out "$RUNS/${name}_export" --drop-unused-llm-layers
-    six_seeds "$RUNS/${name}_export" "results/data_efficiency/$name"
-  }
   MIX288=${MIX288:-$DATA-mix288}
   [[ -d "$MIX288" ]] || collect_mix288 "$MIX288"
   kept_grounding_arm "$DATA10" kept10
@@ -1332,14 +1344,6 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   # Do the prelude demonstrations count in chains? The clean arm and the mixed one at 8200 steps, 80 chains each.
   eighty_chains "$RUNS/keptclean360_export" results/data_efficiency/keptclean360
   # Short of steps? Each arm followed 3700 steps more, seed 2 (the 10% arm in session 62-63, the 30% arm in 63).
-  kept_grounding_longer() {  # kept_grounding_longer DATA NAME -> RUNS/NAME_follow2{,_export}, NAME_longer_seedS.json
-    local data=$1 name=$2
-    trivla-drake "${GROUNDED_POLICY[@]}" --data "$data" --out "$RUNS/${name}_follow2" --init "$RUNS/${name}_follow/final" \
-        --grounding-phase follow --lr 3e-4 --steps 3700 --seed 2 --subgoal-offset --ema-decay 0.999
-    trivla-drake export "$RUNS/${name}_follow2/final" --out "$RUNS/${name}_follow2_export" --drop-unused-llm-layers
-    cp "$RUNS/${name}_follow2/summary.json" "results/data_efficiency/${name}_follow2.summary.json"
-    six_seeds "$RUNS/${name}_follow2_export" "results/data_efficiency/${name}_longer"
-  }
   kept_grounding_longer "$DATA10" kept10
   kept_grounding_longer "$MIX288" kept30
   eighty_chains "$RUNS/kept30_follow2_export" results/data_efficiency/kept30_longer
@@ -1365,4 +1369,33 @@ if [[ "${KEPT_GROUNDING:-0}" == 1 ]]; then
   "${PYTHON:-python}" results/data_efficiency/learning_curve.py results/data_efficiency/learning_curve_kept_8200.png \
       "10% kept=96=results/data_efficiency/kept10_longer" "30% kept=288=results/data_efficiency/kept30_longer" \
       "100%=960=results/prelude_stacked_mix/shipped" > results/data_efficiency/learning_curve_kept_8200.md
+fi
+# 64. Optional (KEPT_UNION=1; results/data_efficiency/, session 64; about 2 h here): the curve's fourth point at
+#     matched steps, step 63's arm on step 62's 360 clean and 288 mixed demonstrations together (`train --extra-data`;
+#     the 108 clean episodes both folders hold are trained on once: 540 demonstrations), 4500 steps, then 3700 more
+#     -> results/data_efficiency/kept540_*, kept540_longer_*, its 80 chains at 8200 steps, the paired comparisons
+#     kept540_compare and kept540_chains_compare (.md, .png), and the curves learning_curve_kept_540 (the four kept
+#     arms at 8200 steps with the shipped model) and learning_curve_kept_matched (the three kept arms alone)
+if [[ "${KEPT_UNION:-0}" == 1 ]]; then
+  CLEAN360=${CLEAN360:-$DATA-clean360}
+  MIX288=${MIX288:-$DATA-mix288}
+  [[ -d "$CLEAN360" ]] || collect_clean360 "$CLEAN360"
+  [[ -d "$MIX288" ]] || collect_mix288 "$MIX288"
+  kept_grounding_arm "$CLEAN360" kept540 --extra-data "$MIX288"
+  kept_grounding_longer "$CLEAN360" kept540 --extra-data "$MIX288"
+  eighty_chains "$RUNS/kept540_follow2_export" results/data_efficiency/kept540_longer
+  KD=results/data_efficiency
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py "$KD/kept540_compare.png" \
+      "288 mixed, 8200 steps=$KD/kept30_longer" "540, 4500 steps=$KD/kept540" "540, 8200 steps=$KD/kept540_longer" \
+      "360 clean, 4500 steps=$KD/keptclean360" > "$KD/kept540_compare.md"
+  "${PYTHON:-python}" results/follow_control/compare_seeds.py --chain-seeds 1003-1006 "$KD/kept540_chains_compare.png" \
+      "288 mixed, 8200 steps=$KD/kept30_longer" "540, 8200 steps=$KD/kept540_longer" \
+      "360 clean, 4500 steps=$KD/keptclean360" \
+      "100% shipped=results/prelude_stacked_mix/shipped+results/stacked_subgoal/shipped" > "$KD/kept540_chains_compare.md"
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py "$KD/learning_curve_kept_540.png" \
+      "10% kept=96=$KD/kept10_longer" "30% kept=288=$KD/kept30_longer" "56% kept=540=$KD/kept540_longer" \
+      "100%=960=results/prelude_stacked_mix/shipped" > "$KD/learning_curve_kept_540.md"
+  "${PYTHON:-python}" results/data_efficiency/learning_curve.py "$KD/learning_curve_kept_matched.png" \
+      "10% kept=96=$KD/kept10_longer" "30% kept=288=$KD/kept30_longer" "56% kept=540=$KD/kept540_longer" \
+      > "$KD/learning_curve_kept_matched.md"
 fi

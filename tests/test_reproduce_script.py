@@ -60,7 +60,7 @@ def _dry_run(tmp_path: Path, skip: tuple[str, ...] = ()) -> list[list[str]]:
            "FRESH_SEEDS": "1", "SOUP_FOLLOW": "1", "ANCHOR": "1", "SUBGOAL_TRUST": "1", "SYSTEM2_SCENES": "1", "CHAIN_STARTS": "1", "SHIPPED_FOLLOW": "1",
            "HOME_FIRST": "1", "WEAK_PRELUDES": "1", "MORE_SCENES": "1", "PRELUDE_RESET": "1", "CHAIN_LIFTS": "1",
            "STACKED_DEMOS": "1", "KEEP_NORM": "1", "PRELUDE_STACKED": "1", "STACKED_REFIT": "1",
-           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1", "KEPT_GROUNDING": "1",
+           "STACKED_HOLD": "1", "GOAL_HOLD": "1", "DATA30": "1", "BIND_COUNTS": "1", "KEPT_GROUNDING": "1", "KEPT_UNION": "1",
            "PYTHON": str(bin_dir / "python-recorder")}
     env = {key: value for key, value in env.items() if key not in skip}
     (work / "data" / "sim").mkdir()
@@ -863,3 +863,28 @@ def test_step_63_collects_the_data_step_62_would_have_left_when_run_without_it(t
         follow = run_writing(calls, f"runs/{name}_follow")
         assert option(follow, "--data") == data
         assert calls.index(collects[data][-1]) < calls.index(follow)
+
+
+def test_step_64_trains_step_63_s_arm_on_the_clean_and_the_mixed_demonstrations_together(calls, every_call):
+    """Step 64: step 63's arm (the same two runs, 4500 then 3700 steps) on step 62's 360 clean demonstrations with
+    its 288 mixed as --extra-data; six seeds after each run, 80 chains at the end, and the curves with it."""
+    for name in ("follow", "follow2"):
+        union, clean = run_writing(calls, f"runs/kept540_{name}"), run_writing(calls, f"runs/keptclean360_{name}"
+                                                                              if name == "follow" else "runs/kept30_follow2")
+        assert option(union, "--data") == option(run_writing(calls, "runs/keptclean360_follow"), "--data")
+        assert option(union, "--extra-data") == option(run_writing(calls, "runs/kept30_follow"), "--data")
+        assert _without(union, "--data", "--extra-data", "--out", "--init") == \
+            _without(clean, "--data", "--extra-data", "--out", "--init")
+    assert option(run_writing(calls, "runs/kept540_follow2"), "--init") == "runs/kept540_follow/final"
+    for policy in ("runs/kept540_export", "runs/kept540_follow2_export"):
+        assert [option(a, "--seed") for a in calls if a[0] == "evaluate" and "--chains" not in a
+                and option(a, "--policy") == policy] == [str(s) for s in range(1000, 1006)]
+    chains = [a for a in calls if a[0] == "evaluate" and option(a, "--policy") == "runs/kept540_follow2_export"
+              and "--chains" in a]
+    assert [(option(a, "--seed"), option(a, "--chains")) for a in chains] == [(str(s), "20") for s in range(1003, 1007)]
+    kd = "results/data_efficiency"
+    curves = {a[2]: a[3:] for a in every_call if a[:2] == ["python", "results/data_efficiency/learning_curve.py"]}
+    assert [arm.split("=", 1)[1] for arm in curves[f"{kd}/learning_curve_kept_matched.png"]] == \
+        [f"96={kd}/kept10_longer", f"288={kd}/kept30_longer", f"540={kd}/kept540_longer"]
+    assert curves[f"{kd}/learning_curve_kept_540.png"][:3] == curves[f"{kd}/learning_curve_kept_matched.png"]
+

@@ -7,7 +7,7 @@
 
 `config.py` TrainConfig (every field documented), `trainer.py` the loop, `checkpoints.py` atomic
 training checkpoints, `sampler.py` the resumable distributed batch sampler, `datasets.py` clips and
-policy samples, `features.py` the System 2/3 feature cache, `vqa.py` simulator-generated visual
+policy samples, `dataset_union.py` several datasets in one policy run (`--extra-data`), `features.py` the System 2/3 feature cache, `vqa.py` simulator-generated visual
 questions, `cli_commands.py` the `train` subcommand.
 """
 

@@ -53,6 +53,7 @@ def config_from_args(args: argparse.Namespace):
         stage=args.stage,
         out=args.out,
         data=args.data,
+        extra_data=tuple(args.extra_data or ()),
         preset=args.preset,
         init=args.init,
         steps=args.steps,
@@ -141,6 +142,9 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--data", default=None,
                         help="LeRobot dataset folder (video, policy); for vlm an optional folder for the "
                              "generated visual-question set")
+    parser.add_argument("--extra-data", action="append", default=None, metavar="FOLDER",
+                        help="policy stage: another LeRobot dataset folder to train on with --data (repeatable; "
+                             "normalisation over all of them, an episode two folders both hold is trained on once)")
     parser.add_argument("--out", required=True, help="run folder: checkpoints/, final/, log.jsonl, summary.json")
     parser.add_argument("--preset", default=None, help="model preset: tiny, cpu, paper (default: --init's, else cpu)")
     parser.add_argument("--init", default=None, metavar="CHECKPOINT_DIR",

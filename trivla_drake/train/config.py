@@ -32,7 +32,7 @@ STAGE_DEFAULTS: dict[str, dict[str, Any]] = {
 # Fields that may differ between a run and the run it resumes (they do not change what is learned).
 RESUMABLE_CHANGES = frozenset(
     {"steps", "checkpoint_every", "keep_checkpoints", "resume", "workers", "progress", "log_every", "threads",
-     "cache_dir", "dist_timeout_minutes", "out", "data", "init", "vqa_eval_questions"}
+     "cache_dir", "dist_timeout_minutes", "out", "data", "extra_data", "init", "vqa_eval_questions"}
 )
 
 
@@ -80,6 +80,9 @@ class TrainConfig:
     # LeRobot dataset folder (video and policy stages). For the vlm stage: an optional folder for the
     # generated visual-question set (default: a folder in `cache_dir` named by the generation settings).
     data: str | None = None
+    # Policy stage: more LeRobot dataset folders trained on together with `data` (same state, action and
+    # cameras; normalisation over all; an episode that two folders both hold is trained on once).
+    extra_data: tuple[str, ...] = ()
     # Model preset (tiny, cpu, paper) of a fresh model; None: the --init checkpoint's preset, else "cpu".
     # Given together with `init`, it must match the checkpoint's preset.
     preset: str | None = None
@@ -278,6 +281,11 @@ class TrainConfig:
             raise ValueError("out (--out) is required")
         if self.stage in ("video", "policy") and not self.data:
             raise ValueError(f"data (--data) is required for the {self.stage} stage: a LeRobot dataset folder")
+        if self.extra_data and self.stage != "policy":
+            raise ValueError(f"extra_data (--extra-data) applies to the policy stage only; got stage {self.stage!r}")
+        for folder in self.extra_data:
+            if not isinstance(folder, str) or not folder:
+                raise ValueError(f"extra_data (--extra-data) must be dataset folders; got {folder!r}")
         positive = ("steps", "batch_size", "checkpoint_every", "keep_checkpoints", "feature_stride",
                     "feature_batch_size", "vqa_scenes", "vqa_questions_per_scene", "log_every")
         for name in positive:
@@ -442,6 +450,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         # A saved config (JSON) gives a list: as a tuple it compares equal to the flag's on --resume.
         self.grounding_carry_tasks = tuple(self.grounding_carry_tasks)
+        self.extra_data = tuple(self.extra_data or ())
         # (Anything else is left for validate() to refuse, naming the field.)
         for name in ("grounding_anchor_camera", "grounding_anchor_wrist_camera"):
             if isinstance(getattr(self, name), list):

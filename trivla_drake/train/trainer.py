@@ -444,11 +444,13 @@ def _optimizer(module: nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
 # Data per stage
 
 
-def _prepare_data(config: TrainConfig, model: TriVLA, reader, env: DistEnv) -> tuple[Any, Callable, dict]:
-    """(dataset, collate function, summary) of the stage; caches are made here (sharded over ranks)."""
+def _prepare_data(config: TrainConfig, model: TriVLA, readers: list, env: DistEnv) -> tuple[Any, Callable, dict]:
+    """(dataset, collate function, summary) of the stage; caches are made here (sharded over ranks).
+    `readers`: --data's dataset, then --extra-data's (policy stage); empty for the vlm stage."""
     from trivla_drake.train import datasets as ds
 
     progress = config.progress and env.is_main
+    reader = readers[0] if readers else None
     if config.stage == "video":
         episodes = ds.select_episodes(reader, config.fraction, config.seed)
         dyn = model.config.dynamics
@@ -488,17 +490,32 @@ def _prepare_data(config: TrainConfig, model: TriVLA, reader, env: DistEnv) -> t
     # policy
     from trivla_drake.train.features import ensure_feature_cache
 
-    episodes = ds.select_episodes(reader, config.fraction, config.seed)
-    if model.vision_language is not None or model.dynamics is not None:
-        ds.check_cameras(reader, [config.static_camera, config.wrist_camera])
-    shards, summary = ensure_feature_cache(model, reader, episodes, config, env, progress=progress)
-    dataset = ds.PolicyFeatureDataset(
-        reader, episodes, shards, feature_stride=config.feature_stride,
-        action_horizon=model.config.policy.action_horizon,
-        use_system2=model.vision_language is not None, use_system3=model.dynamics is not None,
-        grounding_frames_only=config.grounding_phase == "bind", grounding_carry_tasks=tuple(config.grounding_carry_tasks),
-    )
-    return dataset, ds.collate_policy, {"episodes": len(episodes), "samples": len(dataset), **summary}
+    from trivla_drake.train.dataset_union import PolicyDatasetUnion, drop_repeated_episodes
+
+    chosen = [ds.select_episodes(r, config.fraction, config.seed) for r in readers]
+    chosen, repeated = drop_repeated_episodes(readers, chosen)
+    parts, summary = [], {}
+    for r, episodes in zip(readers, chosen):
+        if model.vision_language is not None or model.dynamics is not None:
+            ds.check_cameras(r, [config.static_camera, config.wrist_camera])
+        shards, summary_r = ensure_feature_cache(model, r, episodes, config, env, progress=progress)
+        for key, value in summary_r.items():  # shard counts add up; the rest (one cache folder) is the first's
+            if key not in summary:
+                summary[key] = value
+            elif key.startswith("feature_shards_"):
+                summary[key] += value
+        parts.append(ds.PolicyFeatureDataset(
+            r, episodes, shards, feature_stride=config.feature_stride,
+            action_horizon=model.config.policy.action_horizon,
+            use_system2=model.vision_language is not None, use_system3=model.dynamics is not None,
+            grounding_frames_only=config.grounding_phase == "bind",
+            grounding_carry_tasks=tuple(config.grounding_carry_tasks),
+        ))
+    dataset = parts[0] if len(parts) == 1 else PolicyDatasetUnion(parts)
+    if len(parts) > 1:
+        summary["episodes_per_dataset"] = {str(r.root): len(e) for r, e in zip(readers, chosen)}
+        summary["repeated_episodes_dropped"] = repeated
+    return dataset, ds.collate_policy, {"episodes": sum(map(len, chosen)), "samples": len(dataset), **summary}
 
 
 def vqa_folder(config: TrainConfig, model: TriVLA) -> Path:
@@ -556,22 +573,27 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
                        "(pass --init with the vlm stage's final checkpoint)")
     config.validate()
 
-    reader = None
+    reader, readers = None, []
     if config.stage in ("video", "policy"):
         from trivla_drake.data.lerobot import LeRobotReader
 
         reader = LeRobotReader(config.data)
+        readers = [reader, *(LeRobotReader(folder) for folder in config.extra_data)]
     model = build_model(config, resume_from)
     train_state = ckpt.load_train_state(resume_from) if resume_from is not None else None
     if config.stage == "policy":
-        from trivla_drake.train.datasets import check_spaces, narrowed_action_ranges, normalization_from_stats
+        from trivla_drake.train.datasets import check_spaces, narrowed_action_ranges
 
         where = f"checkpoint {resume_from}" if resume_from else (f"--init checkpoint {config.init}" if config.init
                                                                  else f"preset {config.preset!r}")
-        check_spaces(reader, model.config, where)
-        if config.stage == "policy" and model.policy.grounding is not None:
-            check_grounding(reader, config.grounding_weight, where)
-        fitted = normalization_from_stats(reader, model.config)
+        from trivla_drake.train.dataset_union import check_same_fps, union_normalization
+
+        for one in readers:
+            check_spaces(one, model.config, where)
+            if model.policy.grounding is not None:
+                check_grounding(one, config.grounding_weight, where)
+        check_same_fps(readers)
+        fitted = union_normalization(readers, model.config)
         if config.keep_normalization:
             _note(env, f"keeping {where}'s state and action normalisation (--keep-normalization)")
         else:
@@ -600,7 +622,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     trained.train()
 
     prepare_started = time.time()
-    dataset, collate, data_summary = _prepare_data(config, model, reader, env)
+    dataset, collate, data_summary = _prepare_data(config, model, readers, env)
     # A resumed run keeps its checkpoint's statistics, a follow run its bind run's (what the binding learnt on),
     # and a held-only bind its --init's (everything but the held-block read-out stays as it was).
     if (config.stage == "policy" and train_state is None and config.grounding_phase != "follow"

@@ -1,0 +1,112 @@
+"""`train --extra-data`: the policy stage trains on several LeRobot datasets together, each episode once,
+with the normalisation of all of them, and refuses folders it cannot join with an error naming the field."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats
+from trivla_drake.nn import load_checkpoint
+from trivla_drake.train import TrainConfig, train
+from trivla_drake.train.cli_commands import main
+from trivla_drake.train.dataset_union import PolicyDatasetUnion, drop_repeated_episodes, episode_content_key
+from trivla_drake.train.synthetic import write_synthetic_dataset
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    """a: 3 episodes; b: 5 episodes of the same seed (its first 3 are a's); c: other episodes at 18 fps."""
+    root = tmp_path_factory.mktemp("extra")
+    a = write_synthetic_dataset(root / "a", episodes=3, length=20, image_size=16)
+    b = write_synthetic_dataset(root / "b", episodes=5, length=20, image_size=16)
+    c = write_synthetic_dataset(root / "c", episodes=2, length=20, image_size=16, fps=18.0, seed=3)
+    return {"root": root, "a": a, "b": b, "c": c, "cache": str(root / "cache")}
+
+
+class _MovedReader:
+    """A reader whose episode rows are another's, stored elsewhere (other indices, files and offsets)."""
+
+    def __init__(self, reader: LeRobotReader, shift: int):
+        self.episodes = []
+        for row in reader.episodes:
+            moved = dict(row)
+            moved["episode_index"] = row["episode_index"] + shift
+            moved["dataset_from_index"] = row["dataset_from_index"] + 100 * shift
+            moved["data/file_index"] = row["data/file_index"] + 1
+            moved["stats/index/min"] = [v + 100 * shift for v in row["stats/index/min"]]
+            self.episodes.append(moved)
+
+
+def test_an_episode_stored_elsewhere_keeps_its_content_key_and_other_content_changes_it(folders):
+    a = LeRobotReader(folders["a"])
+    moved = _MovedReader(a, shift=7)
+    assert [episode_content_key(moved, e) for e in range(3)] == [episode_content_key(a, e) for e in range(3)]
+    assert len({episode_content_key(a, e) for e in range(3)}) == 3
+    moved.episodes[1]["stats/action/mean"] = [v + 1e-3 for v in moved.episodes[1]["stats/action/mean"]]
+    assert episode_content_key(moved, 1) != episode_content_key(a, 1)
+
+
+def test_repeated_episodes_are_kept_once_in_the_first_folder(folders):
+    a, b = LeRobotReader(folders["a"]), LeRobotReader(folders["b"])
+    kept, dropped = drop_repeated_episodes([a, b], [[0, 1, 2], [0, 1, 2, 3, 4]])
+    assert kept == [[0, 1, 2], [3, 4]] and dropped == 3
+    kept, dropped = drop_repeated_episodes([b, a], [[1, 3], [0, 1, 2]])
+    assert kept == [[1, 3], [0, 2]] and dropped == 1
+
+
+def test_union_samples_run_through_each_part_in_order():
+    class Part:
+        def __init__(self, name, n):
+            self.name, self.n, self.shards = name, n, {0: f"{name}.safetensors"}
+
+        def __len__(self):
+            return self.n
+
+        def __getitem__(self, i):
+            return (self.name, i)
+
+        def gripper_event_repeats(self, window, weight):
+            return np.full(self.n, weight if self.name == "b" else 1)
+
+    union = PolicyDatasetUnion([Part("a", 2), Part("b", 3)])
+    assert len(union) == 5 and [union[i] for i in range(5)] == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("b", 2)]
+    assert union.shards == {(0, 0): "a.safetensors", (1, 0): "b.safetensors"}
+    assert union.gripper_event_repeats(3, 4).tolist() == [1, 1, 4, 4, 4]
+    with pytest.raises(IndexError):
+        union[5]
+
+
+def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(folders):
+    out = folders["root"] / "run"
+    summary = train(TrainConfig(stage="policy", data=folders["a"], extra_data=(folders["b"],), out=str(out),
+                                preset="tiny", steps=3, batch_size=4, cache_dir=folders["cache"], progress=False,
+                                feature_stride=2))
+    assert summary["episodes"] == 5 and summary["repeated_episodes_dropped"] == 3
+    assert summary["episodes_per_dataset"] == {folders["a"]: 3, folders["b"]: 2}
+    assert summary["samples"] == 5 * 10  # every second frame of 5 episodes of 20 frames
+    assert summary["feature_shards_computed"] == 5  # a's three and b's two new episodes, each once
+    a, b = LeRobotReader(folders["a"]), LeRobotReader(folders["b"])
+    both = aggregate_stats([a.stats, b.stats])
+    model = load_checkpoint(summary["final_checkpoint"])
+    assert np.allclose(model.normalization.state_mean, both["observation.state"]["mean"], atol=1e-6)
+    assert np.allclose(model.normalization.action_max, both["action"]["max"], atol=1e-6)
+    saved = json.loads((out / "final" / "train_config.json").read_text())
+    assert saved["extra_data"] == [folders["b"]]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--stage", "video", "--extra-data", "B"], "extra_data (--extra-data) applies to the policy stage only"),
+    (["--extra-data", "C"], "is recorded at 18.0 fps"),
+])
+def test_folders_that_cannot_be_joined_are_refused_before_training(folders, capsys, tmp_path, extra, message):
+    extra = [folders["b"] if v == "B" else folders["c"] if v == "C" else v for v in extra]
+    args = ["train", "--stage", "policy", "--data", folders["a"], "--out", str(tmp_path / "out"), "--steps", "2",
+            "--preset", "tiny", "--cache-dir", folders["cache"], "--no-progress", *extra]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    error = err.strip().splitlines()[-1]  # after any note
+    assert error.startswith("trivla-drake train: error: ") and message in error, err
+    assert not (tmp_path / "out" / "final").exists()

@@ -1,0 +1,109 @@
+"""Training the policy stage on several LeRobot datasets at once (`--data A --extra-data B ...`).
+
+- `episode_content_key`: what an episode is, without where it lies in its folder (its index, its file and
+  frame offsets): two folders collected with the same seed hold equal episodes under different indices.
+- `drop_repeated_episodes`: each episode once, the first folder's copy kept.
+- `union_normalization`: the state and action statistics of all the folders together (meta/stats.json
+  of each, weighted by their frame counts), as one folder holding them all would give.
+- `PolicyDatasetUnion`: the samples of one `PolicyFeatureDataset` per folder, one after another.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats
+from trivla_drake.nn.config import TriVLAConfig
+from trivla_drake.nn.normalization import NormalizationStats
+
+# Episode metadata that says where an episode is stored, not what it holds.
+_LOCATING_KEYS = ("episode_index", "dataset_from_index", "dataset_to_index")
+_LOCATING_PREFIXES = ("data/", "videos/", "meta/", "stats/episode_index/", "stats/index/", "stats/task_index/")
+
+
+def episode_content_key(reader: LeRobotReader, episode: int) -> str:
+    """A hash of episode `episode`'s metadata row without the entries that locate it in its folder
+    (index, files, offsets, and the statistics of the index columns): equal for the same episode
+    written into two folders."""
+    row = {k: v for k, v in reader.episodes[episode].items()
+           if k not in _LOCATING_KEYS and not k.startswith(_LOCATING_PREFIXES)}
+    return hashlib.sha256(json.dumps(row, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def drop_repeated_episodes(readers: list[LeRobotReader], episodes: list[list[int]]) -> tuple[list[list[int]], int]:
+    """`episodes` (one list per reader) without the episodes an earlier list already holds
+    (`episode_content_key`), and how many were dropped."""
+    seen: set[str] = set()
+    kept: list[list[int]] = []
+    dropped = 0
+    for reader, chosen in zip(readers, episodes):
+        mine = []
+        for episode in chosen:
+            key = episode_content_key(reader, episode)
+            if key in seen:
+                dropped += 1
+                continue
+            seen.add(key)
+            mine.append(episode)
+        kept.append(mine)
+    return kept, dropped
+
+
+def check_same_fps(readers: list[LeRobotReader]) -> None:
+    """Raises ValueError naming the first folder whose frame rate differs from the first's (action chunks
+    and the gripper-event window are counted in frames)."""
+    first = readers[0]
+    for reader in readers[1:]:
+        if float(reader.fps) != float(first.fps):
+            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} is recorded at {reader.fps} fps "
+                             f"but --data {first.root} at {first.fps} fps; the action chunks would mean other times")
+
+
+def union_normalization(readers: list[LeRobotReader], config: TriVLAConfig) -> NormalizationStats:
+    """State mean / std and action min / max over all `readers`' meta/stats.json together."""
+    from trivla_drake.train.datasets import ACTION_KEY, STATE_KEY, normalization_from_stats
+
+    if len(readers) == 1:
+        return normalization_from_stats(readers[0], config)
+    for reader in readers:
+        normalization_from_stats(reader, config)  # each folder's statistics are there and well formed
+    merged = aggregate_stats([{k: reader.stats[k] for k in (STATE_KEY, ACTION_KEY)} for reader in readers])
+    result = NormalizationStats.from_dict({
+        "state_mean": merged[STATE_KEY]["mean"], "state_std": merged[STATE_KEY]["std"],
+        "action_min": merged[ACTION_KEY]["min"], "action_max": merged[ACTION_KEY]["max"],
+    })
+    result.check_dims(config.policy.state_dim, config.policy.action_dim)
+    return result
+
+
+class PolicyDatasetUnion:
+    """The samples of `parts` (PolicyFeatureDataset, one per folder) one after another. `shards` maps
+    (part, episode) to the episode's cached features, as a part's maps its episode."""
+
+    def __init__(self, parts: list[Any]) -> None:
+        if not parts:
+            raise ValueError("no datasets to join")
+        self.parts = parts
+        self._ends = np.cumsum([len(p) for p in parts])
+        self.shards: dict[tuple[int, int], Path] = {
+            (i, episode): path for i, part in enumerate(parts) for episode, path in part.shards.items()
+        }
+
+    def __len__(self) -> int:
+        return int(self._ends[-1])
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        if not 0 <= i < len(self):
+            raise IndexError(f"sample {i} of {len(self)}")
+        part = int(np.searchsorted(self._ends, i, side="right"))
+        start = int(self._ends[part - 1]) if part else 0
+        return self.parts[part][i - start]
+
+    def gripper_event_repeats(self, window: int, weight: int) -> np.ndarray:
+        """Each part's `gripper_event_repeats`, in the union's sample order."""
+        return np.concatenate([p.gripper_event_repeats(window, weight) for p in self.parts])
