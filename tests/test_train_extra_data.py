@@ -55,6 +55,8 @@ def test_repeated_episodes_are_kept_once_in_the_first_folder(folders):
     assert kept == [[0, 1, 2], [3, 4]] and dropped == 3
     kept, dropped = drop_repeated_episodes([b, a], [[1, 3], [0, 1, 2]])
     assert kept == [[1, 3], [0, 2]] and dropped == 1
+    kept, dropped = drop_repeated_episodes([a, a], [[0, 0, 2], [2]])  # repeats inside one folder stay
+    assert kept == [[0, 0, 2], []] and dropped == 1
 
 
 def test_union_samples_run_through_each_part_in_order():
@@ -77,6 +79,8 @@ def test_union_samples_run_through_each_part_in_order():
     assert union.gripper_event_repeats(3, 4).tolist() == [1, 1, 4, 4, 4]
     with pytest.raises(IndexError):
         union[5]
+    with pytest.raises(AssertionError):  # torch's message: "datasets should not be an empty iterable"
+        PolicyDatasetUnion([])
 
 
 def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(folders):

@@ -5,7 +5,7 @@
 - `drop_repeated_episodes`: each episode once, the first folder's copy kept.
 - `union_normalization`: the state and action statistics of all the folders together (meta/stats.json
   of each, weighted by their frame counts), as one folder holding them all would give.
-- `PolicyDatasetUnion`: the samples of one `PolicyFeatureDataset` per folder, one after another.
+- `PolicyDatasetUnion`: the samples of one `PolicyFeatureDataset` per folder, one after another (a ConcatDataset).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch.utils.data
 
 from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats
 from trivla_drake.nn.config import TriVLAConfig
@@ -36,22 +37,15 @@ def episode_content_key(reader: LeRobotReader, episode: int) -> str:
 
 
 def drop_repeated_episodes(readers: list[LeRobotReader], episodes: list[list[int]]) -> tuple[list[list[int]], int]:
-    """`episodes` (one list per reader) without the episodes an earlier list already holds
-    (`episode_content_key`), and how many were dropped."""
+    """`episodes` (one list per reader) without the episodes an earlier reader's list already holds
+    (`episode_content_key`; a folder's own episodes are all kept), and how many were dropped."""
     seen: set[str] = set()
     kept: list[list[int]] = []
-    dropped = 0
     for reader, chosen in zip(readers, episodes):
-        mine = []
-        for episode in chosen:
-            key = episode_content_key(reader, episode)
-            if key in seen:
-                dropped += 1
-                continue
-            seen.add(key)
-            mine.append(episode)
-        kept.append(mine)
-    return kept, dropped
+        keys = {episode: episode_content_key(reader, episode) for episode in chosen}
+        kept.append([episode for episode in chosen if keys[episode] not in seen])
+        seen.update(keys.values())
+    return kept, sum(map(len, episodes)) - sum(map(len, kept))
 
 
 def check_same_fps(readers: list[LeRobotReader]) -> None:
@@ -81,29 +75,16 @@ def union_normalization(readers: list[LeRobotReader], config: TriVLAConfig) -> N
     return result
 
 
-class PolicyDatasetUnion:
-    """The samples of `parts` (PolicyFeatureDataset, one per folder) one after another. `shards` maps
-    (part, episode) to the episode's cached features, as a part's maps its episode."""
+class PolicyDatasetUnion(torch.utils.data.ConcatDataset):
+    """The samples of `parts` (PolicyFeatureDataset, one per folder) one after another (torch's ConcatDataset),
+    with what the trainer reads of a part: `shards`, keyed (part, episode), and `gripper_event_repeats`."""
 
     def __init__(self, parts: list[Any]) -> None:
-        if not parts:
-            raise ValueError("no datasets to join")
-        self.parts = parts
-        self._ends = np.cumsum([len(p) for p in parts])
+        super().__init__(parts)
         self.shards: dict[tuple[int, int], Path] = {
             (i, episode): path for i, part in enumerate(parts) for episode, path in part.shards.items()
         }
 
-    def __len__(self) -> int:
-        return int(self._ends[-1])
-
-    def __getitem__(self, i: int) -> dict[str, Any]:
-        if not 0 <= i < len(self):
-            raise IndexError(f"sample {i} of {len(self)}")
-        part = int(np.searchsorted(self._ends, i, side="right"))
-        start = int(self._ends[part - 1]) if part else 0
-        return self.parts[part][i - start]
-
     def gripper_event_repeats(self, window: int, weight: int) -> np.ndarray:
         """Each part's `gripper_event_repeats`, in the union's sample order."""
-        return np.concatenate([p.gripper_event_repeats(window, weight) for p in self.parts])
+        return np.concatenate([p.gripper_event_repeats(window, weight) for p in self.datasets])
