@@ -4,6 +4,7 @@ with the normalisation of all of them, and refuses folders it cannot join with a
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -113,4 +114,49 @@ def test_folders_that_cannot_be_joined_are_refused_before_training(folders, caps
     err = capsys.readouterr().err
     error = err.strip().splitlines()[-1]  # after any note
     assert error.startswith("trivla-drake train: error: ") and message in error, err
+    assert not (tmp_path / "out" / "final").exists()
+
+
+def _edited_copy(source: str, target, edit) -> str:
+    """A copy of dataset `source` at `target` whose meta/info.json `edit` changed in place."""
+    import shutil
+
+    shutil.copytree(source, target)
+    info_path = target / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    edit(info["features"])
+    info_path.write_text(json.dumps(info))
+    return str(target)
+
+
+def _renamed_action(features):
+    features["action"]["names"] = [*features["action"]["names"][:-1], "gripper_width"]
+
+
+def _renamed_wrist_camera(features):
+    features["observation.images.hand"] = features.pop("observation.images.wrist")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_renamed_action, "another action space"),
+    (_renamed_wrist_camera, "has no camera 'observation.images.wrist'"),
+])
+def test_an_extra_folder_of_another_space_or_cameras_is_refused_naming_it(folders, capsys, tmp_path, edit, message):
+    extra = _edited_copy(folders["b"], tmp_path / "edited", edit)
+    args = ["train", "--stage", "policy", "--data", folders["a"], "--extra-data", extra, "--out",
+            str(tmp_path / "out"), "--steps", "2", "--preset", "tiny", "--cache-dir", folders["cache"], "--no-progress"]
+    assert main(args) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message in error and extra in error, error
+    assert not (tmp_path / "out" / "final").exists()
+    assert LeRobotReader(folders["b"]).features["action"]["names"][-1] == "gripper"  # the source is untouched
+
+
+def test_a_grounded_run_refuses_an_extra_folder_without_tcp_poses(folders, tmp_path):
+    posed = write_synthetic_dataset(tmp_path / "posed", episodes=2, length=20, image_size=16, tcp_pose=True)
+    common = dict(stage="policy", preset="tiny", steps=1, batch_size=4, cache_dir=folders["cache"], progress=False,
+                  feature_stride=2, grounding_weight=0.5)
+    missing = "'observation.tcp_pose', which dataset " + re.escape(folders["b"]) + " does not have"
+    with pytest.raises(ValueError, match=missing):
+        train(TrainConfig(data=posed, extra_data=(folders["b"],), out=str(tmp_path / "out"), **common))
     assert not (tmp_path / "out" / "final").exists()
