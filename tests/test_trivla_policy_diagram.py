@@ -56,6 +56,23 @@ def test_policy_drives_the_arm_and_publishes_a_chunk(tiny_model):
     assert np.abs(end[:7] - start[:7]).max() > 1e-3  # an untrained policy still moves the arm
 
 
+def test_the_policy_reads_the_cameras_as_rendered_at_its_tick_not_the_held_frame(tiny_model):
+    """add_trivla_policy wires the station's `.rgb_image_now` ports: Systems 2 and 3 see the scene at the
+    instant of the robot state they are paired with (as in the demonstrations), where the held
+    `.rgb_image` (10 fps) may be up to 0.1 s old."""
+    diagram, station, policy = _closed_loop(tiny_model)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    simulator.AdvanceTo(10 / 36 + 2e-4)  # just after the second tick; the held frame is from t = 0.2
+    station_context, policy_context = station.GetMyContextFromRoot(context), policy.GetMyContextFromRoot(context)
+    sensor = station.GetSubsystemByName("wrist_camera_sensor")
+    rendered = sensor.color_image_output_port().Eval(sensor.GetMyContextFromRoot(context)).data
+    read = policy.GetInputPort("wrist_rgb").Eval(policy_context).data
+    held = station.GetOutputPort("wrist_camera.rgb_image").Eval(station_context).data
+    np.testing.assert_array_equal(read, rendered)
+    assert np.abs(held.astype(int) - rendered.astype(int)).max() > 30  # the hand moved since t = 0.2
+
+
 def test_a_system1_reading_its_subgoal_offset_gets_the_robot_state():
     """policy.subgoal_offset: System 1 computes the tcp from the robot_state port it already reads."""
     config = make_config("tiny")
@@ -236,3 +253,44 @@ def test_the_chunks_that_can_cover_a_tick():
     dt = 1 / 36
     assert [covering_chunks(10 * dt, k * dt) for k in range(1, 11)] == [10, 5, 4, 3, 2, 2, 2, 2, 2, 1]
     assert covering_chunks(10 * dt, 0.25) == 2  # a period that is no multiple of the control period
+
+
+def test_a_latency_of_one_period_skips_no_inference():
+    """An inference started at tick t_n with a delay of exactly one period is ready at tick t_(n+1), though
+    t_n + period may round a float step above Drake's t_(n+1): every tick starts one (none is 'busy')."""
+    from trivla_drake.systems.latency import InferenceSlots
+    from trivla_drake.systems.periodic_inference import PeriodicInferenceSystem
+
+    period = 10 / 36
+
+    class Counter(PeriodicInferenceSystem):
+        def infer(self, context, seed):
+            return np.zeros(1)
+
+    system = Counter(period_s=period, latency=LatencyModel("fixed", period), output_name="value",
+                     offset_s=PolicyRates.stage_offset_s)
+    simulator = Simulator(system)
+    simulator.AdvanceTo(300 * period)
+    assert system.slots(simulator.get_context()).count == 300  # ticks at offset + n period, n = 0..299
+    rounded = [n for n in range(2000) if n * period + period > (n + 1) * period]
+    assert rounded, "no tick of this period rounds up: the check above would not test the tolerance"
+    slots = InferenceSlots().start(rounded[0] * period, "x", period)
+    assert not slots.busy((rounded[0] + 1) * period) and slots.visible((rounded[0] + 1) * period)[0] == "x"
+
+
+@pytest.mark.parametrize("use_system2", [True, False])
+def test_each_system_has_the_same_seed_from_construction_and_from_set_seed(use_system2):
+    """System 1, 2 and 3 get the policy's seed plus a fixed offset (0, 1, 2), whichever systems the model
+    keeps, so `set_seed(context, s)` gives what building with `seed=s` gives."""
+    from trivla_drake.systems.trivla_policy import SEED_OFFSETS
+
+    config = dataclasses.replace(make_config("tiny"), use_system2=use_system2)
+    policy = TriVLAPolicy(TriVLA(config).eval(), seed=7)
+    context = policy.CreateDefaultContext()
+    built = {k: s.GetMyContextFromRoot(context).get_numeric_parameter(0).GetAtIndex(0)
+             for k, s in policy.systems.items() if k != "executor"}
+    assert built == {k: 7.0 + SEED_OFFSETS[k] for k in built} and ("vision_language" in built) == use_system2
+    policy.set_seed(context, 3)
+    reseeded = {k: s.GetMyContextFromRoot(context).get_numeric_parameter(0).GetAtIndex(0)
+                for k, s in policy.systems.items() if k != "executor"}
+    assert reseeded == {k: 3.0 + SEED_OFFSETS[k] for k in built}

@@ -46,8 +46,10 @@ class ImageSampleAndHold(LeafSystem):
 
 def add_rgb_camera(
     builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, name: str, config: CameraConfig
-) -> OutputPort:
-    """Add one camera; returns its ImageRgba8U output, refreshed every 1/fps seconds of sim time."""
+) -> tuple[OutputPort, OutputPort]:
+    """Add one camera; returns its ImageRgba8U outputs (held, now): the image sampled every 1/fps
+    seconds of sim time and held, and the sensor's own output, rendered at the current state whenever
+    it is evaluated (what a periodic consumer such as the policy reads at its tick: never stale)."""
     if config.fps <= 0:
         raise ValueError(f"cameras.{name}.fps must be positive, got {config.fps}")
     renderer = config.renderer_name
@@ -72,7 +74,7 @@ def add_rgb_camera(
         f"{name}_sample_and_hold", ImageSampleAndHold(1.0 / config.fps, config.width, config.height)
     )
     builder.Connect(sensor.color_image_output_port(), hold.get_input_port())
-    return hold.get_output_port()
+    return hold.get_output_port(), sensor.color_image_output_port()
 
 
 def camera_calibration(config: CameraConfig, name: str) -> list[float]:

@@ -9,7 +9,11 @@ Exported ports (`{instance}.{port}`, as in manipulation's MakeHardwareStation):
     plant.state           the whole plant's state (for task predicates)
     plant.body_poses      list of RigidTransform, world frame, indexed by BodyIndex
     lamp.on               1-vector, 1 while the button's lamp is lit
-    {camera}.rgb_image    ImageRgba8U for every camera in the scenario (held at its fps)
+    {camera}.rgb_image    ImageRgba8U for every camera in the scenario, sampled at its fps and held
+                          (for recorders and viewers: up to 1/fps old)
+    {camera}.rgb_image_now  ImageRgba8U of the same camera rendered at the current state when
+                          evaluated (for periodic consumers such as the policy, which read it at
+                          their own ticks; nothing renders it otherwise)
     query_object          SceneGraph's QueryObject
 """
 
@@ -90,7 +94,9 @@ def make_station(scenario: Scenario, *, meshcat: Meshcat | None = None) -> Diagr
         builder.ExportOutput(logic.GetOutputPort("lamp_on"), "lamp.on")
 
     for name, camera in scenario.cameras.items():
-        builder.ExportOutput(add_rgb_camera(builder, plant, scene_graph, name, camera), f"{name}.rgb_image")
+        held, now = add_rgb_camera(builder, plant, scene_graph, name, camera)
+        builder.ExportOutput(held, f"{name}.rgb_image")
+        builder.ExportOutput(now, f"{name}.rgb_image_now")
 
     if meshcat is not None:
         ApplyVisualizationConfig(scenario.visualization, builder, meshcat=meshcat)

@@ -11,6 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any
 
+# Sim times within this of each other [s] are one instant: an inference started at tick t_n with a
+# delay of one period is ready at the next tick, though t_n + period may round a float step above
+# Drake's t_(n+1) (about 5% of the ticks of a 10/36 s period would otherwise skip an inference).
+TIME_TOLERANCE_S = 1e-9
+
 
 @dataclass(frozen=True)
 class LatencyModel:
@@ -56,17 +61,21 @@ class InferenceSlots:
 
     def visible(self, t: float) -> tuple[Any, float]:
         """(value, observation time) visible at sim time t."""
-        if self.pending is not None and t >= self.ready_time:
+        if self.pending is not None and self.ready(t):
             return self.pending, self.pending_stamp
         return self.current, self.current_stamp
 
+    def ready(self, t: float) -> bool:
+        """True when `pending`'s ready time has come at sim time t (to within TIME_TOLERANCE_S)."""
+        return t >= self.ready_time - TIME_TOLERANCE_S
+
     def busy(self, t: float) -> bool:
         """True while an inference started earlier has not yet published."""
-        return self.pending is not None and t < self.ready_time
+        return self.pending is not None and not self.ready(t)
 
     def settle(self, t: float) -> "InferenceSlots":
         """Move a pending result that is visible at t into `current`."""
-        if self.pending is None or t < self.ready_time:
+        if self.pending is None or not self.ready(t):
             return self
         return replace(self, current=self.pending, current_stamp=self.pending_stamp,
                        pending=None, pending_stamp=float("nan"), ready_time=float("inf"))

@@ -17,8 +17,8 @@ def add_trivla_policy(
     *,
     rates: PolicyRates | None = None,
     seed: int = 0,
-    static_camera: str = "static_camera.rgb_image",
-    wrist_camera: str = "wrist_camera.rgb_image",
+    static_camera: str = "static_camera.rgb_image_now",
+    wrist_camera: str = "wrist_camera.rgb_image_now",
     robot_state: str = "panda.state",
     arm_position: str = "panda.position",
     gripper_width: str = "panda.gripper_width",
@@ -27,7 +27,10 @@ def add_trivla_policy(
 ) -> TriVLAPolicy:
     """Add the policy and a DifferentialIKSystem to `builder` and wire them to `station`'s ports.
 
-    The port names default to make_station's; pass others for a different station or robot.
+    The port names default to make_station's; pass others for a different station or robot. The
+    cameras default to the `.rgb_image_now` ports, rendered when Systems 2 and 3 read them at their
+    ticks, so the images show the same instant as the robot state, as in the demonstrations; a held
+    `.rgb_image` port would hand the policy a frame up to 1/fps old.
     The policy's `instruction` input is left for the caller to connect (a ConstantValueSource of a
     str, or a task's instruction source).
     """

@@ -47,7 +47,8 @@ class PolicyRates:
     ensemble_decay: float | None = None
     action_space: ActionSpace = DEFAULT_ACTION_SPACE
     # Sense, think, act in one instant: Systems 2 and 3 run this long [s] after each period starts
-    # (reading the cameras' latest held frame, up to 1/fps old), System 1 twice as long (on their
+    # (reading the cameras as rendered then: add_trivla_policy wires the station's `.rgb_image_now`
+    # ports, a held `.rgb_image` would be up to 1/fps old), System 1 twice as long (on their
     # fresh features and the robot state of that instant), the chunk executor three times (after
     # System 1's chunk), so a chunk's first action is played at the instant of its observation, as
     # in the evaluation harness and the demonstrations (which also render the images at that instant).
@@ -87,6 +88,10 @@ class PolicyRates:
                              f"({shortest:g} s), got {self.stage_offset_s}")
 
 
+# Each system's seed is the policy's seed plus its offset, whichever systems the model keeps.
+SEED_OFFSETS = {"policy": 0, "vision_language": 1, "dynamics": 2}
+
+
 class TriVLAPolicy(Diagram):
     """The whole TriVLA policy as a Drake Diagram (see the module docstring for its ports)."""
 
@@ -110,7 +115,8 @@ class TriVLAPolicy(Diagram):
 
         policy = builder.AddNamedSystem(
             "system1_policy",
-            PolicySystem(model, period_s=rates.policy_period_s, latency=rates.latency, seed=seed,
+            PolicySystem(model, period_s=rates.policy_period_s, latency=rates.latency,
+                         seed=seed + SEED_OFFSETS["policy"],
                          offset_s=2 * rates.stage_offset_s),
         )
         builder.Connect(state_in.get_output_port(), policy.GetInputPort("robot_state"))
@@ -126,7 +132,8 @@ class TriVLAPolicy(Diagram):
                 continue
             system = builder.AddNamedSystem(
                 f"system{2 if key == 'vision_language' else 3}_{key}",
-                cls(model, period_s=period, latency=rates.latency, seed=seed + 1, offset_s=rates.stage_offset_s),
+                cls(model, period_s=period, latency=rates.latency, seed=seed + SEED_OFFSETS[key],
+                    offset_s=rates.stage_offset_s),
             )
             for name, source in fan_out.items():
                 builder.Connect(source.get_output_port(), system.GetInputPort(name))
@@ -155,5 +162,6 @@ class TriVLAPolicy(Diagram):
 
     def set_seed(self, root_context, seed: int) -> None:
         """Seed every system's inferences in the root context of the diagram holding this policy."""
-        for offset, system in enumerate(s for k, s in self.systems.items() if k != "executor"):
-            system.set_seed(system.GetMyContextFromRoot(root_context), seed + offset)
+        for key, system in self.systems.items():
+            if key != "executor":
+                system.set_seed(system.GetMyContextFromRoot(root_context), seed + SEED_OFFSETS[key])
