@@ -146,3 +146,22 @@ def test_the_wrist_cameras_cells_are_placed_from_the_hands_pose_where_the_render
         drawn_in = int(rows.mean() // 28) * 8 + int(cols.mean() // 28)
         distances = np.linalg.norm(places[:, :2] - position[:2], axis=1)
         assert np.argmin(distances) == drawn_in and distances[drawn_in] < 0.05, color
+
+
+def test_a_scenario_with_cameras_held_rarely_is_a_copy_and_keeps_the_live_ports():
+    """Loops whose policy reads `.rgb_image_now` sample the held images at initialisation only; the caller's
+    scenario keeps its fps."""
+    from pydrake.systems.analysis import Simulator
+
+    from trivla_drake.station.scenario import RARELY_HELD_FPS, load_scenario, with_cameras_held_rarely
+    from trivla_drake.station.station import make_station
+
+    scenario = load_scenario()
+    rare = with_cameras_held_rarely(scenario)
+    assert [c.fps for c in scenario.cameras.values()] == [10.0, 10.0]
+    assert [c.fps for c in rare.cameras.values()] == [RARELY_HELD_FPS] * 2
+    station = make_station(rare)
+    simulator = Simulator(station)
+    simulator.Initialize()
+    image = station.GetOutputPort("static_camera.rgb_image_now").Eval(simulator.get_context())
+    assert (image.width(), image.height()) == (224, 224) and image.data[:, :, :3].std() > 10

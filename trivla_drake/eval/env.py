@@ -19,7 +19,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from trivla_drake.station.scenario import Scenario, load_scenario
+from trivla_drake.station.scenario import Scenario, load_scenario, with_cameras_held_rarely
 from trivla_drake.station.station import make_station
 from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE, ActionExecutor, ActionSpace, check_action
 from trivla_drake.systems.diffik_system import DifferentialIKSystem
@@ -27,9 +27,6 @@ from trivla_drake.tasks.scene import Layout, SceneSpec, SceneState
 from trivla_drake.tasks.sim import StationHandles
 
 CAMERA_KEYS = {"static_camera": "static_rgb", "wrist_camera": "wrist_rgb"}
-# The station's cameras hold an image sampled at their fps; the env renders on demand at each control
-# step instead (so an image shows the same instant as the state), and sets the held sampling this rare.
-_HELD_IMAGE_FPS = 1e-3
 
 
 class SimulationError(RuntimeError):
@@ -63,15 +60,13 @@ class TabletopEnv:
 
     # ---------------------------------------------------------------- building
     def _scenario(self) -> Scenario:
+        # The env renders on demand at each control step (an image shows the same instant as the state).
         scenario = load_scenario() if self._scenario_source is None else self._scenario_source
-        scenario = _copy_scenario(scenario)
+        scenario = with_cameras_held_rarely(scenario)
         if self.image_size is None:
             scenario.cameras = {}
-        else:
-            for name in list(scenario.cameras):
-                camera = scenario.cameras[name]
-                camera.width = camera.height = int(self.image_size)
-                camera.fps = _HELD_IMAGE_FPS
+        for camera in scenario.cameras.values():
+            camera.width = camera.height = int(self.image_size)
         return scenario
 
     def _build(self) -> None:
@@ -173,10 +168,3 @@ class TabletopEnv:
             image = port.Eval(sensor.GetMyContextFromRoot(self._context))
             out[key] = np.array(image.data[:, :, :3], dtype=np.uint8)
         return out
-
-
-def _copy_scenario(scenario: Scenario) -> Scenario:
-    """A deep copy of a Scenario (its Drake members copy through their serialisers)."""
-    import copy
-
-    return copy.deepcopy(scenario)

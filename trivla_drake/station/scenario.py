@@ -91,3 +91,19 @@ def load_scenario(filename: "str | os.PathLike | None" = None, scenario_name: st
         )
     except Exception as error:  # Drake raises RuntimeError with the YAML key path in the text.
         raise ScenarioError(f"cannot load scenario '{scenario_name}' from {filename}: {error}") from error
+
+
+# A held camera sampled this rarely [fps] renders at initialisation only (within any episode's length).
+RARELY_HELD_FPS = 1e-3
+
+
+def with_cameras_held_rarely(scenario: Scenario) -> Scenario:
+    """A copy of `scenario` whose cameras' held `.rgb_image` ports sample only at initialisation: for
+    loops whose readers take `.rgb_image_now` (rendered on demand), so the periodic hold does not render
+    10 frames a second that nobody reads (about a fifth of the closed loop's time on 2 cores)."""
+    import copy
+
+    scenario = copy.deepcopy(scenario)  # its Drake members copy through their serialisers
+    for camera in scenario.cameras.values():
+        camera.fps = RARELY_HELD_FPS
+    return scenario
