@@ -1375,7 +1375,9 @@ fi
 #     the 108 clean episodes both folders hold are trained on once: 540 demonstrations), 4500 steps, then 3700 more
 #     -> results/data_efficiency/kept540_*, kept540_longer_*, its 80 chains at 8200 steps, the paired comparisons
 #     kept540_compare and kept540_chains_compare (.md, .png), and the curves learning_curve_kept_540 (the four kept
-#     arms at 8200 steps with the shipped model) and learning_curve_kept_matched (the three kept arms alone)
+#     arms at 8200 steps with the shipped model) and learning_curve_kept_matched (the three kept arms alone).
+#     The stored figures were made before session 65, when the state statistics counted the 108 shared episodes
+#     twice; a rerun now counts them once (slightly other state normalisation, the same action ranges).
 if [[ "${KEPT_UNION:-0}" == 1 ]]; then
   CLEAN360=${CLEAN360:-$DATA-clean360}
   MIX288=${MIX288:-$DATA-mix288}

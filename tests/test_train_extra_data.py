@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats
+from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_stats
 from trivla_drake.nn import load_checkpoint
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.cli_commands import main
@@ -19,12 +19,14 @@ from trivla_drake.train.synthetic import write_synthetic_dataset
 
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory):
-    """a: 3 episodes; b: 5 episodes of the same seed (its first 3 are a's); c: other episodes at 18 fps."""
+    """a: 3 episodes; b: 5 episodes of the same seed (its first 3 are a's); c: other episodes at 18 fps;
+    posed: other episodes with tcp poses."""
     root = tmp_path_factory.mktemp("extra")
     a = write_synthetic_dataset(root / "a", episodes=3, length=20, image_size=16)
     b = write_synthetic_dataset(root / "b", episodes=5, length=20, image_size=16)
     c = write_synthetic_dataset(root / "c", episodes=2, length=20, image_size=16, fps=18.0, seed=3)
-    return {"root": root, "a": a, "b": b, "c": c, "cache": str(root / "cache")}
+    posed = write_synthetic_dataset(root / "posed", episodes=2, length=20, image_size=16, seed=5, tcp_pose=True)
+    return {"root": root, "a": a, "b": b, "c": c, "posed": posed, "cache": str(root / "cache")}
 
 
 class _MovedReader:
@@ -94,7 +96,7 @@ def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(fold
     assert summary["samples"] == 5 * 10  # every second frame of 5 episodes of 20 frames
     assert summary["feature_shards_computed"] == 5  # a's three and b's two new episodes, each once
     a, b = LeRobotReader(folders["a"]), LeRobotReader(folders["b"])
-    both = aggregate_stats([a.stats, b.stats])
+    both = aggregate_stats([a.stats, *(episode_stats(b.episodes[e]) for e in (3, 4))])  # b's 0-2 are a's
     model = load_checkpoint(summary["final_checkpoint"])
     assert np.allclose(model.normalization.state_mean, both["observation.state"]["mean"], atol=1e-6)
     assert np.allclose(model.normalization.action_max, both["action"]["max"], atol=1e-6)
@@ -105,9 +107,13 @@ def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(fold
 @pytest.mark.parametrize("extra, message", [
     (["--stage", "video", "--extra-data", "B"], "extra_data (--extra-data) applies to the policy stage only"),
     (["--extra-data", "C"], "is recorded at 18.0 fps"),
+    (["--extra-data", "A"], "which is already --data: each folder once"),
+    (["--extra-data", "C", "--extra-data", "C"], "which is already given: each folder once"),
+    (["--extra-data", "POSED"], "has ['observation.tcp_pose'] that --data lacks"),
 ])
 def test_folders_that_cannot_be_joined_are_refused_before_training(folders, capsys, tmp_path, extra, message):
-    extra = [folders["b"] if v == "B" else folders["c"] if v == "C" else v for v in extra]
+    named = {"A": folders["a"], "B": folders["b"], "C": folders["c"], "POSED": folders["posed"]}
+    extra = [named.get(v, v) for v in extra]
     args = ["train", "--stage", "policy", "--data", folders["a"], "--out", str(tmp_path / "out"), "--steps", "2",
             "--preset", "tiny", "--cache-dir", folders["cache"], "--no-progress", *extra]
     assert main(args) == 2
@@ -160,3 +166,22 @@ def test_a_grounded_run_refuses_an_extra_folder_without_tcp_poses(folders, tmp_p
     with pytest.raises(ValueError, match=missing):
         train(TrainConfig(data=posed, extra_data=(folders["b"],), out=str(tmp_path / "out"), **common))
     assert not (tmp_path / "out" / "final").exists()
+
+
+def test_an_extra_folder_that_adds_nothing_new_is_refused_before_any_caching(folders, tmp_path):
+    """--data b --extra-data a: all of a's episodes are b's first three (a copy given by mistake)."""
+    cache = tmp_path / "cache"
+    with pytest.raises(ValueError, match=r"extra_data \(--extra-data\): dataset .*/a adds no episode"):
+        train(TrainConfig(stage="policy", data=folders["b"], extra_data=(folders["a"],), out=str(tmp_path / "out"),
+                          preset="tiny", steps=1, batch_size=4, cache_dir=str(cache), progress=False))
+    assert not list(cache.rglob("*.safetensors"))
+
+
+def test_a_resume_on_other_folders_is_refused_naming_them(folders, tmp_path):
+    common = dict(stage="policy", data=folders["a"], out=str(tmp_path / "run"), preset="tiny", batch_size=4,
+                  cache_dir=folders["cache"], progress=False, feature_stride=2, checkpoint_every=2)
+    train(TrainConfig(steps=2, **common))
+    with pytest.raises(ValueError, match=r"data \(--data\) / extra_data \(--extra-data\) give other statistics"):
+        train(TrainConfig(steps=4, resume=True, extra_data=(folders["b"],), **common))
+    resumed = train(TrainConfig(steps=4, resume=True, **common))  # the same folder resumes
+    assert (resumed["resumed_from_step"], resumed["steps"]) == (2, 4)

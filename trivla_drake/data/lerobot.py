@@ -32,6 +32,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from trivla_drake.data.durable import fsync_file
+
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
 CHUNK_FILE = "chunk-{chunk_index:03d}/file-{file_index:03d}"
@@ -87,6 +89,7 @@ def _atomic_write_table(path: Path, table: pa.Table) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     pq.write_table(table, tmp)
+    fsync_file(tmp)  # meta/episodes commits an episode: never an empty file under its name
     os.replace(tmp, path)
 
 
@@ -193,7 +196,8 @@ def _read_episode_rows(root: Path) -> list[dict]:
     return rows
 
 
-def _episode_stats(row: dict) -> dict[str, dict]:
+def episode_stats(row: dict) -> dict[str, dict]:
+    """One episode's statistics ({feature: {metric: value}}) from its meta/episodes row."""
     stats: dict[str, dict] = {}
     for column, value in row.items():
         if column.startswith("stats/") and value is not None:
@@ -387,7 +391,7 @@ class LeRobotWriter:
         }
         _atomic_write_json(self.root / INFO_PATH, info)
         if self._episodes:
-            _atomic_write_json(self.root / STATS_PATH, aggregate_stats([_episode_stats(r) for r in self._episodes]))
+            _atomic_write_json(self.root / STATS_PATH, aggregate_stats([episode_stats(r) for r in self._episodes]))
         if not (self.root / TASKS_PATH).is_file():
             _atomic_write_table(self.root / TASKS_PATH, _tasks_table(self._tasks))
 

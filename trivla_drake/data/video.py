@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trivla_drake.data.durable import fsync_file
+
 VIDEO_CODEC = "mpeg4"  # the name ffmpeg (and lerobot's info.json) use for the fourcc 'mp4v'
 _FOURCC = "mp4v"
 
@@ -31,6 +33,7 @@ def write_video(path: str | os.PathLike, frames: np.ndarray, fps: float) -> Path
             writer.write(np.ascontiguousarray(frame[:, :, ::-1]))  # OpenCV wants BGR
     finally:
         writer.release()
+    fsync_file(tmp)
     os.replace(tmp, path)
     return path
 

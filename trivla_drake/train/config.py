@@ -286,6 +286,11 @@ class TrainConfig:
         for folder in self.extra_data:
             if not isinstance(folder, str) or not folder:
                 raise ValueError(f"extra_data (--extra-data) must be dataset folders; got {folder!r}")
+        folders = [os.path.realpath(f) for f in (self.data, *self.extra_data) if f]
+        for i, folder in enumerate(folders[1:], start=1):
+            if folder in folders[:i]:
+                raise ValueError(f"extra_data (--extra-data) names {self.extra_data[i - 1]!r}, which is already "
+                                 f"{'--data' if folders.index(folder) == 0 else 'given'}: each folder once")
         positive = ("steps", "batch_size", "checkpoint_every", "keep_checkpoints", "feature_stride",
                     "feature_batch_size", "vqa_scenes", "vqa_questions_per_scene", "log_every")
         for name in positive:

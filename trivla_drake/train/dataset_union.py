@@ -2,9 +2,10 @@
 
 - `episode_content_key`: what an episode is, without where it lies in its folder (its index, its file and
   frame offsets): two folders collected with the same seed hold equal episodes under different indices.
-- `drop_repeated_episodes`: each episode once, the first folder's copy kept.
-- `union_normalization`: the state and action statistics of all the folders together (meta/stats.json
-  of each, weighted by their frame counts), as one folder holding them all would give.
+- `drop_repeated_episodes`: each episode once, the first folder's copy kept; `check_each_folder_adds`.
+- `check_same_features`: every folder records the same non-video features (a batch mixes their samples).
+- `union_normalization`: the state and action statistics of all the folders together, each episode once
+  (per-episode statistics, weighted by their frame counts), as one folder holding them all would give.
 - `PolicyDatasetUnion`: the samples of one `PolicyFeatureDataset` per folder, one after another (a ConcatDataset).
 """
 
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch.utils.data
 
-from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats
+from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_stats
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
 
@@ -48,6 +49,32 @@ def drop_repeated_episodes(readers: list[LeRobotReader], episodes: list[list[int
     return kept, sum(map(len, episodes)) - sum(map(len, kept))
 
 
+def check_each_folder_adds(readers: list[LeRobotReader], kept: list[list[int]]) -> None:
+    """Raises ValueError naming an --extra-data folder none of whose chosen episodes is new (all held by an
+    earlier folder): most likely a copy of --data, given by mistake."""
+    for reader, episodes in zip(readers[1:], kept[1:]):
+        if not episodes:
+            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} adds no episode that --data "
+                             f"{readers[0].root} or an earlier --extra-data folder does not already hold")
+
+
+def check_same_features(readers: list[LeRobotReader]) -> None:
+    """Raises ValueError naming the first folder whose non-video features (state, action, tcp pose, ...)
+    differ from --data's: a batch mixes the folders' samples, so each must carry the same fields."""
+    def fields(reader):
+        return {k for k, v in reader.features.items() if v.get("dtype") != "video"}
+
+    first = fields(readers[0])
+    for reader in readers[1:]:
+        mine = fields(reader)
+        if mine != first:
+            detail = "; ".join(part for part in (
+                f"has {sorted(mine - first)} that --data lacks" if mine - first else "",
+                f"lacks {sorted(first - mine)}" if first - mine else "") if part)
+            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} {detail} (--data "
+                             f"{readers[0].root}); train together only folders recorded with the same fields")
+
+
 def check_same_fps(readers: list[LeRobotReader]) -> None:
     """Raises ValueError naming the first folder whose frame rate differs from the first's (action chunks
     and the gripper-event window are counted in frames)."""
@@ -59,14 +86,23 @@ def check_same_fps(readers: list[LeRobotReader]) -> None:
 
 
 def union_normalization(readers: list[LeRobotReader], config: TriVLAConfig) -> NormalizationStats:
-    """State mean / std and action min / max over all `readers`' meta/stats.json together."""
+    """State mean / std and action min / max over all `readers`' episodes together, each episode once: the
+    first folder's meta/stats.json (all its episodes, as a run on it alone) and the per-episode statistics of
+    the episodes each later folder adds (those no earlier folder holds)."""
     from trivla_drake.train.datasets import ACTION_KEY, STATE_KEY, normalization_from_stats
 
     if len(readers) == 1:
         return normalization_from_stats(readers[0], config)
     for reader in readers:
         normalization_from_stats(reader, config)  # each folder's statistics are there and well formed
-    merged = aggregate_stats([{k: reader.stats[k] for k in (STATE_KEY, ACTION_KEY)} for reader in readers])
+    every = [list(range(reader.num_episodes)) for reader in readers]
+    added, _ = drop_repeated_episodes(readers, every)
+    parts = [{k: readers[0].stats[k] for k in (STATE_KEY, ACTION_KEY)}]
+    for reader, episodes in zip(readers[1:], added[1:]):
+        for episode in episodes:
+            stats = episode_stats(reader.episodes[episode])
+            parts.append({k: stats[k] for k in (STATE_KEY, ACTION_KEY)})
+    merged = aggregate_stats(parts)
     result = NormalizationStats.from_dict({
         "state_mean": merged[STATE_KEY]["mean"], "state_std": merged[STATE_KEY]["std"],
         "action_min": merged[ACTION_KEY]["min"], "action_max": merged[ACTION_KEY]["max"],

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
@@ -260,7 +261,14 @@ def ensure_feature_cache(
             "feature_seed": config.feature_seed,
             "image_size": model.image_size,
         }
-        (root / "cache_info.json").write_text(json.dumps(info, indent=2))
+        info_path = root / "cache_info.json"
+        try:  # another folder of the same run (--extra-data) may have lent shards to this cache too
+            earlier = json.loads(info_path.read_text()) if info_path.is_file() else {}
+        except ValueError:
+            earlier = {}
+        if earlier.get("key") == key:
+            info["lenders"] = sorted({*earlier.get("lenders", []), *lenders})
+        atomic_write_text(info_path, json.dumps(info, indent=2))
     was_training = model.training
     model.eval()
     bar = tqdm(total=len(mine), desc="caching System 2/3 features", unit="ep",

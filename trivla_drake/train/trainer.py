@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.nn.checkpoint import load_checkpoint, read_checkpoint_config
 from trivla_drake.nn.config import PRESETS, TriVLAConfig, make_config
 from trivla_drake.nn.trivla import TriVLA
@@ -314,6 +315,16 @@ def check_grounding(reader, grounding_weight: float, where: str) -> None:
                          f"which dataset {reader.root} does not have")
 
 
+def check_resumed_normalization(saved, fitted, where: str) -> None:
+    """A resumed policy run keeps training on the data it started on: ValueError naming --data / --extra-data
+    when the statistics those folders give now differ from the checkpoint's (other or more folders)."""
+    saved_dict, fitted_dict = saved.to_dict(), fitted.to_dict()
+    differing = [k for k in saved_dict if not np.allclose(saved_dict[k], fitted_dict[k], rtol=1e-5, atol=1e-7)]
+    if differing:
+        raise ValueError(f"data (--data) / extra_data (--extra-data) give other statistics ({', '.join(differing)}) "
+                         f"than {where} was trained on: resume on the same folders (or start a new run with --init)")
+
+
 def trainable_module(model: TriVLA, stage: str) -> nn.Module:
     """What a stage trains: System 3's UNet and text projection (its VAE and CLIP stay frozen, as in
     VPP), all of System 2, or System 1."""
@@ -405,7 +416,7 @@ def _truncate_log(path: Path, last_step: int) -> None:
                 kept.append(line)
         except (ValueError, KeyError, TypeError):
             continue
-    path.write_text("".join(line + "\n" for line in kept))
+    atomic_write_text(path, "".join(line + "\n" for line in kept))  # a crash here keeps the old log
 
 
 def learning_rate(config: TrainConfig, step: int) -> float:
@@ -490,14 +501,13 @@ def _prepare_data(config: TrainConfig, model: TriVLA, readers: list, env: DistEn
     # policy
     from trivla_drake.train.features import ensure_feature_cache
 
-    from trivla_drake.train.dataset_union import PolicyDatasetUnion, drop_repeated_episodes
+    from trivla_drake.train.dataset_union import PolicyDatasetUnion, check_each_folder_adds, drop_repeated_episodes
 
     chosen = [ds.select_episodes(r, config.fraction, config.seed) for r in readers]
     chosen, repeated = drop_repeated_episodes(readers, chosen)
     parts, summary = [], {}
+    check_each_folder_adds(readers, chosen)
     for r, episodes in zip(readers, chosen):
-        if model.vision_language is not None or model.dynamics is not None:
-            ds.check_cameras(r, [config.static_camera, config.wrist_camera])
         shards, summary_r = ensure_feature_cache(model, r, episodes, config, env, progress=progress)
         for key, value in summary_r.items():  # shard counts add up; the rest (one cache folder) is the first's
             if key not in summary:
@@ -586,14 +596,20 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
         where = f"checkpoint {resume_from}" if resume_from else (f"--init checkpoint {config.init}" if config.init
                                                                  else f"preset {config.preset!r}")
-        from trivla_drake.train.dataset_union import check_same_fps, union_normalization
+        from trivla_drake.train.dataset_union import check_same_features, check_same_fps, union_normalization
+        from trivla_drake.train.datasets import check_cameras
 
         for one in readers:
             check_spaces(one, model.config, where)
             if model.policy.grounding is not None:
                 check_grounding(one, config.grounding_weight, where)
+            if model.vision_language is not None or model.dynamics is not None:
+                check_cameras(one, [config.static_camera, config.wrist_camera])
         check_same_fps(readers)
+        check_same_features(readers)
         fitted = union_normalization(readers, model.config)
+        if train_state is not None and not config.keep_normalization:
+            check_resumed_normalization(model.normalization, fitted, where)
         if config.keep_normalization:
             _note(env, f"keeping {where}'s state and action normalisation (--keep-normalization)")
         else:
