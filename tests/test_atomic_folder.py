@@ -46,3 +46,13 @@ def test_a_failed_atomic_write_leaves_the_old_folder_as_it_was(tmp_path):
             raise RuntimeError("died")
     assert (folder / "a.txt").read_text() == "first"
     assert [p.name for p in tmp_path.iterdir()] == ["set"]
+
+
+def test_a_replaced_folder_leaves_no_set_aside_copy(tmp_path):
+    """The old folder is set aside (not deleted) until the new one is in place, then removed."""
+    folder = tmp_path / "f"
+    for text in ("old", "new"):
+        with atomic_folder(folder) as tmp:
+            (tmp / "x.txt").write_text(text)
+    assert (folder / "x.txt").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]

@@ -53,7 +53,8 @@ def make_closed_loop(
         source = builder.AddNamedSystem("instruction", ConstantValueSource(AbstractValue.Make(instruction)))
         builder.Connect(source.get_output_port(), policy.GetInputPort("instruction"))
     if meshcat is not None:
-        drawer = builder.AddNamedSystem("policy_visualizer", PolicyMeshcatVisualizer(meshcat))
+        drawer = builder.AddNamedSystem("policy_visualizer", PolicyMeshcatVisualizer(
+            meshcat, horizon=model.config.policy.action_horizon))
         builder.Connect(policy.GetOutputPort("ee_target"), drawer.GetInputPort("ee_target"))
         builder.Connect(policy.GetOutputPort("action_chunk"), drawer.GetInputPort("action_chunk"))
     diagram = builder.Build()

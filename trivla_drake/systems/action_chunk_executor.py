@@ -68,7 +68,8 @@ class ActionChunkExecutor(LeafSystem):
 
     Inputs: `action_chunk` (abstract float numpy (H, 7), PolicySystem's output, None before the
     first one), `action_chunk_stamp` (1-vector, sim time [s] of the chunk's observation),
-    `robot_state` (18-vector, Panda q then v; read at initialisation for the starting pose).
+    `robot_state` (18-vector, Panda q (7 arm [rad], 2 fingers [m]) then v [rad/s, m/s]; read at
+    initialisation for the starting pose).
     Outputs: `ee_target` (RigidTransform of `panda_hand_tcp`, world frame [m]), `gripper_target`
     (1-vector, finger distance [m]), `action` (7-vector, the action applied at the last tick).
     Every 1 / control_rate_hz seconds (36 Hz), at offset_s + n / control_rate_hz, it applies one

@@ -81,10 +81,12 @@ class ActionExecutor(LeafSystem):
     """Integrates relative end-effector actions into the diff-IK's `ee_target` at the control rate.
 
     Input `action`: 7-vector (see the module docstring), read every 1/control_rate_hz seconds.
-    Input `robot_state`: 18-vector from the station's `panda.state`, read at initialisation only.
-    Output `ee_target`: RigidTransform of `panda_hand_tcp` in the world, for DifferentialIKSystem.
+    Input `robot_state`: 18-vector from the station's `panda.state` (q: 7 arm [rad], 2 fingers [m]; then v
+    [rad/s, m/s]), read at initialisation only.
+    Output `ee_target`: RigidTransform of `panda_hand_tcp` in the world [m], for DifferentialIKSystem.
     Output `gripper_width`: 1-vector [m], for the station's `panda.gripper_width`.
-    Output `commanded_pose`: 12-vector [p (3); R (9, row-major)] of the commanded tcp pose.
+    Output `commanded_pose`: 12-vector [p (3) [m]; R (9, row-major, unitless)] of the commanded tcp pose
+    in the world.
 
     Discrete state [p (3), R (9, row-major), width (1)] starts at the measured tcp pose (forward
     kinematics of the arm at initialisation) and the measured finger distance. The Panda base is

@@ -25,7 +25,8 @@ class DifferentialIKSystem(LeafSystem):
     """Turns an end-effector pose target into arm joint setpoints, one QP every `params.dt` seconds.
 
     Input `ee_target`: RigidTransform, pose of the Panda's `panda_hand_tcp` frame in the world [m].
-    Input `robot_state`: 18-vector from the station's `panda.state` (q then v; arm first) [rad, rad/s].
+    Input `robot_state`: 18-vector from the station's `panda.state`: q (7 arm [rad], 2 fingers [m]) then v
+    [rad/s, m/s].
     Output `position_setpoint`: 7-vector of arm joint setpoints [rad], for `panda.position`.
     Output `status`: 1-vector, 0 solved, 1 solved inaccurately, 2 solver failed (held),
     3 target rejected (NaN/inf; held).
@@ -48,6 +49,7 @@ class DifferentialIKSystem(LeafSystem):
         # The solver owns preallocated buffers and an OSQP workspace: scratch space, not state.
         # Each answer is a function of (q, target) alone (OsqpDifferentialIK restarts OSQP from the
         # same point every tick and polishes exactly), so Contexts sharing this system never interact.
+        # Being shared scratch space, it is not thread-safe: threads simulating at once each build their own.
         self._solver = OsqpDifferentialIK(kinematics or PandaKinematics(), self._params)
         self._X_BaseW = (X_WBase or RigidTransform()).inverse().GetAsMatrix4()
         self._target_port = self.DeclareAbstractInputPort("ee_target", AbstractValue.Make(RigidTransform()))

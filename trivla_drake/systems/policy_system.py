@@ -16,8 +16,10 @@ class PolicySystem(PeriodicInferenceSystem):
     """TriVLA's System 1 (diffusion transformer sampled by Euler flow-matching steps).
 
     Inputs: `q_vl` (System 2's output; unused when the model has no System 2), `q_p` (System 3's
-    output; unused without System 3), `robot_state` (18-vector: Panda q then v).
-    Output `action_chunk`: float32 numpy (10, 7) of relative end-effector actions (see
+    output; unused without System 3), `robot_state` (18-vector: Panda q (7 arm [rad], 2 fingers [m])
+    then v [rad/s, m/s]).
+    Output `action_chunk`: float32 numpy (action_horizon, 7), 10 for the presets, of relative
+    end-effector actions (see
     trivla_drake.tasks action space), `action_chunk_stamp`: sim time [s] of the state it used.
     It waits (skips its tick) until the systems it needs have published once.
     """

@@ -27,9 +27,10 @@ def chunk_path(start: np.ndarray, chunk: np.ndarray, horizon: int = 10) -> np.nd
 class PolicyMeshcatVisualizer(LeafSystem):
     """Publishes, every `period_s`, a triad at `ee_target` and one sphere per action of the chunk.
 
-    Inputs: `ee_target` (RigidTransform, world), `action_chunk` (abstract float numpy (H, 7) or
-    None). The chunk is drawn as the path its translations trace from the current target. Poses
-    are also written into a Meshcat recording when one is running, so saved pages show them.
+    Inputs: `ee_target` (RigidTransform of the tcp in the world [m]), `action_chunk` (abstract float
+    numpy (H, 7) or None; the first `horizon` rows are drawn). The chunk is drawn as the path its
+    translations trace from the current target. Poses are also written into a Meshcat recording
+    when one is running, so saved pages show them.
     """
 
     def __init__(self, meshcat: Meshcat, *, period_s: float = 1.0 / 30.0, prefix: str = "trivla",

@@ -9,7 +9,8 @@ Ports (stable whatever systems the model keeps):
   outputs
     ee_target       RigidTransform of `panda_hand_tcp` in the world [m], for DifferentialIKSystem
     gripper_target  1-vector, finger distance [m], for the station's `panda.gripper_width`
-    action_chunk    float32 numpy (10, 7), System 1's latest chunk (None before the first)
+    action_chunk    float32 numpy (action_horizon, 7), 10 for the presets: System 1's latest chunk
+                    (None before the first)
     q_vl, q_p       System 2's and System 3's latest outputs (None when dropped or not yet run)
 """
 
