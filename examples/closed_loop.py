@@ -8,12 +8,11 @@ import time
 
 import torch
 from pydrake.common.value import AbstractValue
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
 from trivla_drake.eval.model_loading import load_model
-from trivla_drake.station import load_scenario, make_station
+from trivla_drake.station import load_scenario, make_simulator, make_station
 from trivla_drake.systems.policy_wiring import add_trivla_policy
 
 
@@ -27,13 +26,14 @@ def main():
     torch.set_num_threads(1)  # physics and rendering use the other core
 
     builder = DiagramBuilder()
-    station = builder.AddNamedSystem("station", make_station(load_scenario()))
+    scenario = load_scenario()
+    station = builder.AddNamedSystem("station", make_station(scenario))
     policy = add_trivla_policy(builder, station, load_model(args.checkpoint, preset=args.preset))
     instruction = builder.AddNamedSystem("instruction", ConstantValueSource(AbstractValue.Make(args.instruction)))
     builder.Connect(instruction.get_output_port(), policy.GetInputPort("instruction"))
     diagram = builder.Build()
 
-    simulator = Simulator(diagram)
+    simulator = make_simulator(diagram, scenario)
     simulator.Initialize()
     start = time.perf_counter()
     simulator.AdvanceTo(args.seconds)

@@ -12,13 +12,12 @@ from pydrake.common.schema import Transform
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.parsing import AddModel, ModelDirective
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import CameraConfig
 
 from trivla_drake.eval.model_loading import load_model
-from trivla_drake.station import load_scenario, make_station
+from trivla_drake.station import load_scenario, make_simulator, make_station
 from trivla_drake.systems.policy_wiring import add_trivla_policy
 
 
@@ -72,7 +71,7 @@ def main():
     builder.Connect(policy.GetOutputPort("ee_target"), watcher.GetInputPort("ee_target"))
     diagram = builder.Build()
 
-    simulator = Simulator(diagram)
+    simulator = make_simulator(diagram, scenario)
     simulator.AdvanceTo(args.seconds)
     context = simulator.get_context()
     top_image = station.GetOutputPort("top_camera.rgb_image").Eval(station.GetMyContextFromRoot(context))

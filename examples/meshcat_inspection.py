@@ -8,11 +8,10 @@ import argparse
 import sys
 
 import torch
-from pydrake.systems.analysis import Simulator
 
 from trivla_drake.eval.closed_loop import make_closed_loop
 from trivla_drake.eval.model_loading import load_model
-from trivla_drake.station import load_scenario
+from trivla_drake.station import load_scenario, make_simulator
 from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
 
 
@@ -28,9 +27,10 @@ def main():
 
     meshcat = make_meshcat()
     print(f"Open {meshcat.web_url()} to watch.", flush=True)
-    loop = make_closed_loop(load_scenario(), load_model(args.checkpoint, preset=args.preset),
+    scenario = load_scenario()
+    loop = make_closed_loop(scenario, load_model(args.checkpoint, preset=args.preset),
                             instruction=args.instruction, meshcat=meshcat)
-    simulator = Simulator(loop.diagram)
+    simulator = make_simulator(loop.diagram, scenario)
     simulator.Initialize()
     meshcat.StartRecording(frames_per_second=30.0)
     simulator.AdvanceTo(args.seconds)

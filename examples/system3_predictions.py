@@ -12,11 +12,10 @@ import argparse
 import cv2
 import numpy as np
 import torch
-from pydrake.systems.analysis import Simulator
 
 from trivla_drake.eval.model_loading import load_model
 from trivla_drake.eval.scripted_run import make_scripted_diagram
-from trivla_drake.station import load_scenario
+from trivla_drake.station import load_scenario, make_simulator
 
 
 def main():
@@ -32,8 +31,9 @@ def main():
     torch.set_num_threads(1)
     model = load_model(args.checkpoint, preset=args.preset)
 
-    diagram = make_scripted_diagram(load_scenario())
-    simulator = Simulator(diagram)
+    scenario = load_scenario()
+    diagram = make_scripted_diagram(scenario)
+    simulator = make_simulator(diagram, scenario)
     station = diagram.GetSubsystemByName("station")
     views = {"static": "static_camera_sensor", "wrist": "wrist_camera_sensor"}
     real = {view: [] for view in views}

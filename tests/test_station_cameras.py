@@ -165,3 +165,16 @@ def test_a_scenario_with_cameras_held_rarely_is_a_copy_and_keeps_the_live_ports(
     simulator.Initialize()
     image = station.GetOutputPort("static_camera.rgb_image_now").Eval(simulator.get_context())
     assert (image.width(), image.height()) == (224, 224) and image.data[:, :, :3].std() > 10
+
+
+def test_make_simulator_applies_the_scenarios_simulator_config():
+    from pydrake.systems.analysis import ExtractSimulatorConfig
+
+    from trivla_drake.station import load_scenario, make_simulator, make_station
+
+    scenario = load_scenario()
+    scenario.cameras = {}
+    scenario.simulator_config.max_step_size = 0.01
+    scenario.simulator_config.publish_every_time_step = True
+    applied = ExtractSimulatorConfig(make_simulator(make_station(scenario), scenario))
+    assert applied.max_step_size == 0.01 and applied.publish_every_time_step

@@ -7,12 +7,11 @@ from dataclasses import dataclass
 
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Meshcat
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
 from trivla_drake.nn import TriVLA
-from trivla_drake.station.scenario import Scenario, with_cameras_held_rarely
+from trivla_drake.station.scenario import Scenario, make_simulator, with_cameras_held_rarely
 from trivla_drake.station.station import make_station
 from trivla_drake.systems.policy_visualizer import PolicyMeshcatVisualizer
 from trivla_drake.systems.policy_wiring import add_trivla_policy
@@ -65,7 +64,7 @@ def make_closed_loop(
 def benchmark_closed_loop(scenario: Scenario, model: TriVLA, seconds: float = 3.0) -> dict:
     """Real-time factor of the full closed loop (both cameras, all of the model's systems)."""
     loop = make_closed_loop(scenario, model, instruction="put the red block in the bowl")
-    simulator = Simulator(loop.diagram)
+    simulator = make_simulator(loop.diagram, scenario)
     simulator.Initialize()
     start = time.perf_counter()
     simulator.AdvanceTo(seconds)

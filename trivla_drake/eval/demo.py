@@ -8,12 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.geometry import Meshcat
-from pydrake.systems.analysis import Simulator
 
 from trivla_drake.eval.closed_loop import make_closed_loop
 from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay, check_execute_steps
 from trivla_drake.nn import TriVLA
-from trivla_drake.station.scenario import Scenario, load_scenario
+from trivla_drake.station.scenario import Scenario, load_scenario, make_simulator
 from trivla_drake.systems.latency import LatencyModel
 from trivla_drake.systems.trivla_policy import PolicyRates
 from trivla_drake.tasks.sim import StationHandles
@@ -87,7 +86,8 @@ def run_trivla_demo(
     decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay, "ensemble_decay")
     rates = dataclasses.replace(PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency),
                                 stage_offset_s=stage_offset_s)
-    loop = make_closed_loop(scenario or load_scenario(), model, rates=rates, meshcat=meshcat)
+    scenario = scenario or load_scenario()
+    loop = make_closed_loop(scenario, model, rates=rates, meshcat=meshcat)
     handles = StationHandles(loop.station)
     executor = loop.policy.systems["executor"]
     dt = executor.action_space.dt
@@ -96,7 +96,7 @@ def run_trivla_demo(
                         execute_steps=steps, ensemble_decay=decay)
     for episode in range(episodes):
         rng = np.random.default_rng(seed + episode)
-        simulator = Simulator(loop.diagram)
+        simulator = make_simulator(loop.diagram, scenario)
         context = simulator.get_mutable_context()
         spec, instance = sample_task_instance(task, rng, handles.layout(context))
         handles.apply(context, spec)

@@ -16,10 +16,9 @@ Observations are dicts:
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from trivla_drake.station.scenario import Scenario, load_scenario, with_cameras_held_rarely
+from trivla_drake.station.scenario import Scenario, load_scenario, make_simulator, with_cameras_held_rarely
 from trivla_drake.station.station import make_station
 from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE, ActionExecutor, ActionSpace, check_action
 from trivla_drake.systems.diffik_system import DifferentialIKSystem
@@ -71,7 +70,8 @@ class TabletopEnv:
 
     def _build(self) -> None:
         builder = DiagramBuilder()
-        station = builder.AddNamedSystem("station", make_station(self._scenario()))
+        self._built_scenario = self._scenario()
+        station = builder.AddNamedSystem("station", make_station(self._built_scenario))
         diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem())
         executor = builder.AddNamedSystem("executor", ActionExecutor(self.action_space))
         state = station.GetOutputPort("panda.state")
@@ -84,7 +84,7 @@ class TabletopEnv:
         self.diagram = builder.Build()
         self.station, self.executor, self.diffik = station, executor, diffik
         self.handles = StationHandles(station)
-        self._simulator = Simulator(self.diagram)
+        self._simulator = make_simulator(self.diagram, self._built_scenario)
         self._context = self._simulator.get_mutable_context()
         self._cameras = {}
         for name, key in CAMERA_KEYS.items():
@@ -104,7 +104,7 @@ class TabletopEnv:
         if self._simulator is None:
             self._build()
         else:  # a fresh Context (every state at its default, time 0) and a fresh diff-IK solver
-            self._simulator = Simulator(self.diagram)
+            self._simulator = make_simulator(self.diagram, self._built_scenario)
             self._context = self._simulator.get_mutable_context()
         self.handles.apply(self._context, spec)
         self.diagram.GetInputPort("action").FixValue(self._context, np.zeros(7))

@@ -6,11 +6,10 @@ import time
 from dataclasses import dataclass
 
 from pydrake.geometry import Meshcat
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
 from trivla_drake.station.meshcat_setup import save_static_html
-from trivla_drake.station.scenario import Scenario
+from trivla_drake.station.scenario import Scenario, make_simulator
 from trivla_drake.station.station import make_station
 from trivla_drake.systems.diffik_system import DifferentialIKSystem
 from trivla_drake.systems.scripted_path import CirclePath, ScriptedEndEffectorPath
@@ -61,7 +60,7 @@ def run_scripted(
     if record_html is not None and meshcat is None:
         raise ValueError("record_html needs a meshcat to record from")
     diagram = make_scripted_diagram(scenario, meshcat=meshcat)
-    simulator = Simulator(diagram)
+    simulator = make_simulator(diagram, scenario)
     simulator.Initialize()
     if record_html is not None:
         meshcat.StartRecording(frames_per_second=30.0)

@@ -107,3 +107,13 @@ def with_cameras_held_rarely(scenario: Scenario) -> Scenario:
     for camera in scenario.cameras.values():
         camera.fps = RARELY_HELD_FPS
     return scenario
+
+
+def make_simulator(diagram, scenario: Scenario):
+    """A Simulator of `diagram` (a station built from `scenario`, alone or in a larger diagram) with the
+    scenario's `simulator_config` applied (integrator, real-time rate, publishing)."""
+    from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+
+    simulator = Simulator(diagram)
+    ApplySimulatorConfig(scenario.simulator_config, simulator)
+    return simulator
