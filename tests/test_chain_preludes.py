@@ -183,3 +183,20 @@ def test_bad_evaluate_preludes_name_the_flag(value):
 
     with pytest.raises(ValueError, match="--prelude must be"):
         EvalConfig(tasks=["open_drawer"], episodes=1, prelude=value).validate()
+
+
+def test_a_collection_resumed_with_other_settings_keeps_every_runs_settings(tmp_path):
+    """meta/trivla_collection.json lists each run's settings where they changed (clean, then with preludes),
+    so a folder holding both kinds says so; resuming with the same settings adds no entry."""
+    import json
+
+    from trivla_drake.eval.collect import PROGRESS_FILE, CollectConfig, collect
+
+    out = tmp_path / "mixed"
+    common = dict(out=str(out), tasks=["turn_off_light"], image_size=32)
+    collect(CollectConfig(episodes_per_task=1, **common), progress=False)
+    collect(CollectConfig(episodes_per_task=2, prelude_tasks=2, **common), progress=False)
+    collect(CollectConfig(episodes_per_task=2, prelude_tasks=2, **common), progress=False)
+    saved = json.loads((out / PROGRESS_FILE).read_text())
+    assert [run["prelude_tasks"] for run in saved["runs"]] == [0, 2]
+    assert [run["episodes_per_task"] for run in saved["runs"]] == [1, 2] and saved["config"]["prelude_tasks"] == 2

@@ -232,11 +232,14 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
 
 
 class _Progress:
-    """meta/trivla_collection.json: the run's settings and every failed attempt (with its reason)."""
+    """meta/trivla_collection.json: the latest run's settings (`config`), every run's that differed from the
+    one before (`runs`: a folder resumed with, e.g., --prelude-tasks holds episodes of both kinds), and every
+    failed attempt (with its reason)."""
 
     def __init__(self, root: Path, config: CollectConfig):
         self.path = root / PROGRESS_FILE
         self.failed: dict[str, dict[str, str]] = {}
+        self.runs: list[dict] = []
         if self.path.is_file():
             saved = json.loads(self.path.read_text())
             for key in ("seed", "image_size"):
@@ -246,6 +249,9 @@ class _Progress:
                         "use the same settings to resume, or another --out"
                     )
             self.failed = saved.get("failed", {})
+            self.runs = saved.get("runs", [saved["config"]])
+        if not self.runs or self.runs[-1] != asdict(config):
+            self.runs.append(asdict(config))
         self.config = config
 
     def add_failure(self, task: str, attempt: int, reason: str) -> None:
@@ -255,7 +261,7 @@ class _Progress:
     def save(self) -> None:
         from trivla_drake.data.lerobot import _atomic_write_json
 
-        _atomic_write_json(self.path, {"config": asdict(self.config), "failed": self.failed})
+        _atomic_write_json(self.path, {"config": asdict(self.config), "runs": self.runs, "failed": self.failed})
 
 
 def collect(config: CollectConfig, *, progress: bool = True) -> dict:
