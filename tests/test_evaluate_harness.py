@@ -180,7 +180,7 @@ def test_chains_only_report_has_no_task_rows():
     assert [(r["tried"], r["succeeded"]) for r in positions] == [(2, 2), (2, 2), (2, 1), (1, 1), (1, 1)]
     assert positions[2]["failed_tasks"] == ["push_block_left"]
     table = format_markdown(report)
-    assert "average" not in table and "| 2 | 1.00 | 1.00 | 0.50 | 0.50 | 0.50 | 3.50 ± 1.06 |" in table
+    assert "average" not in table and "| 2 | 1.00 | 1.00 | 0.50 | 0.50 | 0.50 | 3.50 ± 1.50 |" in table
     assert "| succeeded / tried | 2 / 2 | 2 / 2 | 1 / 2 | 1 / 1 | 1 / 1 |" in table
 
 
@@ -216,3 +216,11 @@ def test_chain_positions_pools_the_reports_and_refuses_one_without_positions(tmp
     paths[1].write_text(json.dumps(two))
     with pytest.raises(ValueError, match="two.json: no chains.by_position"):
         script.main([str(p) for p in paths])
+
+
+def test_chains_take_evaluates_max_steps_as_single_episodes_do():
+    """`evaluate --max-steps N --chains K`: every chain task gets N steps, so a capped run caps Avg. Len too."""
+    config = EvalConfig(policy="oracle", tasks=[], chains=1, max_steps=3, seed=5)
+    report = evaluate(config, progress=False)
+    assert report["chain_avg_len"] == 0.0
+    assert report["chains"]["failures"][0]["reason"].endswith("timeout: no success within 3 steps")

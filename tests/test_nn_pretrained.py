@@ -184,6 +184,9 @@ def test_eagle2_checkpoint_layout_loads(released, tmp_path):
     torch.testing.assert_close(ours, reference)
     with pytest.raises(ValueError, match="not a directory"):
         pretrained.load_eagle2(str(tmp_path / "missing"))
+    (directory / "config.json").write_text(__import__("json").dumps({**meta, "ps_version": "v1"}))
+    with pytest.raises(ValueError, match="ps_version 'v1'; only 'v2'"):  # v1 would transpose the token grid
+        pretrained.load_eagle2(str(directory))
 
 
 def test_missing_pretrained_directories_are_value_errors(tmp_path):

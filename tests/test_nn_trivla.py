@@ -248,3 +248,15 @@ def test_bad_split_api_inputs_are_named(model, obs):
         model.sample_actions(q_vl, q_s, features, seed=0, embodiment_id=9)
     with pytest.raises(ValueError, match="observation"):
         model.predict_action_chunk([1, 2, 3])
+
+
+def test_a_state_dimension_constant_in_the_data_is_not_blown_up_at_test_time():
+    """normalize_state floors the std at STATE_STD_FLOOR: a dimension the data never moved (std 0) maps a
+    1 mm deviation to 1, not to 1e5."""
+    import torch
+
+    from trivla_drake.nn.normalization import STATE_STD_FLOOR, NormalizationStats, Normalizer
+
+    stats = NormalizationStats(state_mean=[0.0, 0.5], state_std=[0.2, 0.0], action_min=[-1.0], action_max=[1.0])
+    normalized = Normalizer(stats).normalize_state(torch.tensor([[0.2, 0.501]]))
+    assert torch.allclose(normalized, torch.tensor([[1.0, 0.001 / STATE_STD_FLOOR]]), atol=1e-4)

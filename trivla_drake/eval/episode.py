@@ -22,6 +22,7 @@ from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
 from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, prelude_task, sample_chain_scene
+from trivla_drake.tasks.scene import with_turns_since
 from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
 
 _log = logging.getLogger(__name__)
@@ -171,6 +172,7 @@ def _run_subtask(
     queue: list[np.ndarray] = []
     every_frame = recorder.needs_images(env)
     step = 0
+    scene = initial
     while step < max_steps:
         obs["instruction"] = instance.instruction
         if not queue:
@@ -184,7 +186,8 @@ def _run_subtask(
         recorder.add(obs, action, perturbed)
         obs = env.step(applied, images=every_frame)
         step += 1
-        if task.success(instance.params, initial, env.scene()):
+        scene = with_turns_since(scene, env.scene())
+        if task.success(instance.params, initial, scene):
             result.success, result.steps = True, step
             return result, obs
     result.steps = step
@@ -314,8 +317,10 @@ def run_chain(
     image_size: int | None = None,
     video_path: str | Path | None = None,
     scenario: Scenario | None = None,
+    max_steps: int | None = None,
 ) -> ChainResult:
-    """A chain of `length` tasks from one initial state, stopping at the first failure."""
+    """A chain of `length` tasks from one initial state, stopping at the first failure; each task gets
+    `max_steps` control steps (None: its own budget), as single episodes do."""
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
     env = shared_env(image_size, scenario)
@@ -333,7 +338,8 @@ def run_chain(
                 break
             used.add(instance.task)
             sub, obs = _run_subtask(
-                env, obs, policy, instance, int(rng.integers(2**31)), get_task(instance.task).max_steps, recorder
+                env, obs, policy, instance, int(rng.integers(2**31)), max_steps or get_task(instance.task).max_steps,
+                recorder
             )
             result.subtasks.append(sub)
             if not sub.success:

@@ -77,6 +77,9 @@ class EvalConfig:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
         for name in self.tasks:
             get_task(name)
+        repeated = sorted({name for name in self.tasks if list(self.tasks).count(name) > 1})
+        if repeated:  # the same seeds twice would halve the standard error's variance for nothing
+            raise ValueError(f"--tasks names {repeated} more than once")
         if self.episodes < 0 or self.chains < 0:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
@@ -164,6 +167,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
         paraphrase=config.paraphrases,
         image_size=config.image_size,
         video_path=video,
+        max_steps=config.max_steps,
     ).to_dict()
 
 
@@ -236,7 +240,7 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         completed = [c["completed"] for c in chains]
         n = len(completed)
         mean = sum(completed) / n
-        var = sum((c - mean) ** 2 for c in completed) / n
+        var = sum((c - mean) ** 2 for c in completed) / (n - 1) if n > 1 else 0.0  # sample variance (ddof 1)
         report["chain_avg_len"] = mean
         report["chain_avg_len_stderr"] = math.sqrt(var / n)
         report["chains"] = {

@@ -88,10 +88,16 @@ class TablesConfig:
 
 
 def _mean_stderr(values: list[float]) -> tuple[float, float]:
+    """Mean and standard error (ddof 1) over the seeds' values; NaN error for one seed (it has none)."""
     array = np.asarray(values, dtype=float)
     if len(array) < 2:
-        return float(array.mean()), 0.0
+        return float(array.mean()), float("nan")
     return float(array.mean()), float(array.std(ddof=1) / math.sqrt(len(array)))
+
+
+def _pm(mean: float, stderr: float) -> str:
+    """'0.81 ± 0.06', or '0.81 (one seed)' where there is no standard error."""
+    return f"{mean:.2f} (one seed)" if math.isnan(stderr) else f"{mean:.2f} ± {stderr:.2f}"
 
 
 @functools.lru_cache(maxsize=None)
@@ -242,15 +248,15 @@ def format_tables(report: dict) -> str:
               "| --- | --- | --- |" + (" --- |" if data10 else "")]
     for name, row in main["tasks"].items():
         para = report["paraphrases"]["tasks"][name]
-        lines.append(f"| {name} | {row['success_rate']:.2f} ± {row['stderr']:.2f} | "
-                     f"{para['success_rate']:.2f} ± {para['stderr']:.2f} |"
-                     + (f" {data10['tasks'][name]['success_rate']:.2f} ± {data10['tasks'][name]['stderr']:.2f} |"
+        lines.append(f"| {name} | {_pm(row['success_rate'], row['stderr'])} | "
+                     f"{_pm(para['success_rate'], para['stderr'])} |"
+                     + (f" {_pm(data10['tasks'][name]['success_rate'], data10['tasks'][name]['stderr'])} |"
                         if data10 else ""))
-    lines.append(f"| **average** | **{main['average_success']:.2f} ± {main['average_stderr']:.2f}** | "
-                 f"{report['paraphrases']['average_success']:.2f} ± {report['paraphrases']['average_stderr']:.2f} |"
-                 + (f" {data10['average_success']:.2f} ± {data10['average_stderr']:.2f} |" if data10 else ""))
+    lines.append(f"| **average** | **{_pm(main['average_success'], main['average_stderr'])}** | "
+                 f"{_pm(report['paraphrases']['average_success'], report['paraphrases']['average_stderr'])} |"
+                 + (f" {_pm(data10['average_success'], data10['average_stderr'])} |" if data10 else ""))
     if "chain_avg_len" in main:
-        lines += ["", f"5-task chains: Avg. Len {main['chain_avg_len']:.2f} ± {main['chain_avg_len_stderr']:.2f}"]
+        lines += ["", f"5-task chains: Avg. Len {_pm(main['chain_avg_len'], main['chain_avg_len_stderr'])}"]
     if report["ablation"]:
         lines += ["", "## Sub-system ablation (Table 4)", "", "| systems | Avg. Len | success | latency [ms] | params [M] |",
                   "| --- | --- | --- | --- | --- |"]
@@ -259,11 +265,11 @@ def format_tables(report: dict) -> str:
                          f"{row['average_success']:.2f} | {row['latency_ms']:.1f} | {row['params_millions']:.2f} |")
     if data10:
         lines += ["", "## Data efficiency (Table 1 bottom)", "", "| demonstrations | success |", "| --- | --- |"]
-        lines += [f"| {share} | {result['average_success']:.2f} ± {result['average_stderr']:.2f} |"
+        lines += [f"| {share} | {_pm(result['average_success'], result['average_stderr'])} |"
                   for share, result in (("100%", main), ("10%", data10))]
         recipe = report.get("data100_recipe")  # a joined report: the 100% row of the 10% arm's own recipe
         if recipe:
-            lines.append(f"| {recipe['label']} | {recipe['average_success']:.2f} ± {recipe['average_stderr']:.2f} |")
+            lines.append(f"| {recipe['label']} | {_pm(recipe['average_success'], recipe['average_stderr'])} |")
     lines += ["", "## Latency-aware simulation", "", "| simulation | success | control Hz (sim time) |", "| --- | --- | --- |"]
     for label, row in report["latency"].items():
         lines.append(f"| {label} | {row['success_rate']:.2f} | {row['control_hz']:.1f} |")
@@ -290,7 +296,7 @@ def plot_tables(report: dict, out_dir: Path) -> list[Path]:
     for offset, (key, label) in enumerate(series):
         rows = report[key]["tasks"]
         ax.bar(x + (offset - (len(series) - 1) / 2) * width, [rows[n]["success_rate"] for n in names], width,
-               yerr=[rows[n]["stderr"] for n in names], label=label, capsize=2)
+               yerr=[np.nan_to_num(rows[n]["stderr"]) for n in names], label=label, capsize=2)
     ax.set_xticks(x, names, rotation=40, ha="right")
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("success rate")
@@ -303,7 +309,7 @@ def plot_tables(report: dict, out_dir: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(5, 3.5))
         rows = report["ablation"]
         ax.bar([r["systems"] for r in rows], [r.get("chain_avg_len", 0.0) for r in rows],
-               yerr=[r.get("chain_avg_len_stderr", 0.0) for r in rows], capsize=3, color="tab:orange")
+               yerr=[np.nan_to_num(r.get("chain_avg_len_stderr", 0.0)) for r in rows], capsize=3, color="tab:orange")
         for i, r in enumerate(rows):
             ax.text(i, 0.05, f"{r['latency_ms']:.0f} ms\n{r['params_millions']:.1f} M", ha="center", fontsize=8)
         ax.set_ylabel("Avg. Len (5-task chains)")

@@ -11,6 +11,8 @@ import torch
 from torch import nn
 
 EPS = 1e-8
+# The smallest state standard deviation normalize_state divides by (rad, m, rad/s or m/s).
+STATE_STD_FLOOR = 1e-3
 _FIELDS = ("state_mean", "state_std", "action_min", "action_max")
 
 
@@ -80,8 +82,9 @@ class Normalizer(nn.Module):
             setattr(self, name, torch.tensor(values, dtype=torch.float32, device=device))
 
     def normalize_state(self, state: torch.Tensor) -> torch.Tensor:
-        """(state - mean) / std."""
-        return (state - self.state_mean) / (self.state_std + EPS)
+        """(state - mean) / std, the std floored at STATE_STD_FLOOR: a dimension constant in the data (an
+        unused joint) is not multiplied by 1e8 at test time. The shipped statistics' smallest std is 0.015."""
+        return (state - self.state_mean) / self.state_std.clamp_min(STATE_STD_FLOOR)
 
     def normalize_action(self, action: torch.Tensor) -> torch.Tensor:
         """Maps [min, max] to [-1, 1]."""

@@ -287,6 +287,9 @@ def load_eagle2(path: str, *, num_hidden_layers: int | None = None) -> Eagle2Par
         raise ValueError(
             f"Eagle-2 checkpoint {path!r} has a {llm_type!r} LLM; only Llama-family (SmolLM2) LLMs are supported"
         )
+    if meta.get("ps_version", "v2") != "v2":
+        raise ValueError(f"Eagle-2 checkpoint {path!r} has ps_version {meta['ps_version']!r}; only 'v2' pixel "
+                         "shuffles are supported (v1 orders the token grid transposed)")
     if meta.get("select_layer", -1) != -1:
         raise ValueError("only Eagle-2 checkpoints that read the last SigLIP layer (select_layer -1) are supported")
     vision_cfg = SiglipVisionConfig.from_dict({**meta["vision_config"], "vision_use_head": False})

@@ -395,7 +395,10 @@ class RotateBlock(Task):
         c = params[0]
         if not (current.on_table(c) and current.is_upright(c)) or current.is_held(c):
             return False
-        turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
+        if current.block_turns is not None:  # added up along the episode: a wrong-way turn past 45 degrees
+            turned = self.sign * current.block_turns[c]  # is not folded into a right-way one
+        else:
+            turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
         return ROTATE_MIN <= turned <= ROTATE_MAX
 
     def plan(self, params, scene):
@@ -531,10 +534,11 @@ def get_task(name: str) -> Task:
 
 
 def parse_task_list(text: str | None) -> list[str]:
-    """'all' (or None) -> every task; 'a,b' -> those, each checked (UnknownTaskError lists valid names)."""
+    """'all' (or None) -> every task; 'a,b' -> those, each once and checked (UnknownTaskError lists valid
+    names)."""
     if text is None or text.strip() in ("", "all"):
         return list(TASK_NAMES)
-    names = [part.strip() for part in text.split(",") if part.strip()]
+    names = list(dict.fromkeys(part.strip() for part in text.split(",") if part.strip()))  # each task once
     for name in names:
         get_task(name)
     return names
