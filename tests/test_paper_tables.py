@@ -71,7 +71,8 @@ def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints,
     assert len(stored) == 3 + 2
     # The Drake rows are keyed by the pipeline's stage offsets (rows from before it ran in order are redone).
     demo_settings = [json.loads(p.read_text())["settings"] for p in stored]
-    assert sum(s.get("stage_offset_s") == 1e-4 for s in demo_settings if s["kind"] == "demo") == 2
+    assert sum(s.get("stage_offset_s") == 1e-4 and s.get("camera_frames") == "rendered_at_tick"
+               for s in demo_settings if s["kind"] == "demo") == 2
     main = next(p for p in stored if json.loads(p.read_text())["settings"] == {
         "kind": "evaluate", "tasks": ["turn_on_light"], "episodes": 1, "seed": 0, "chains": 1,
         "paraphrases": False, "max_steps": 6} and json.loads(p.read_text())["checkpoint"] == str(checkpoints["full"]))

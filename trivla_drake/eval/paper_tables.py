@@ -191,9 +191,11 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
         for task in config.latency_tasks:
             max_seconds = config.max_steps / 36.0 if config.max_steps else None
             # The stage offset keys the Drake pipeline: rows stored before its stages ran in order are
-            # recomputed (a later change of the pipeline's behaviour needs a key of its own).
+            # recomputed; so does `camera_frames` (rows from before the policy read the cameras as rendered at
+            # its tick, session 65); a later change of the pipeline's behaviour needs a key of its own.
             settings = {"kind": "demo", "task": task, "episodes": config.latency_episodes, "seed": config.seeds[0],
-                        "latency": label, "max_seconds": max_seconds, "stage_offset_s": PolicyRates.stage_offset_s}
+                        "latency": label, "max_seconds": max_seconds, "stage_offset_s": PolicyRates.stage_offset_s,
+                        "camera_frames": "rendered_at_tick"}
             report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(
                 model, task, episodes=config.latency_episodes, seed=config.seeds[0], latency=latency,
                 max_seconds=max_seconds, execute_steps=config.execute_steps,
