@@ -121,9 +121,11 @@ def test_block_predicates_follow_the_geometry():
     assert held.is_held("red") and not get_task("place_in_bowl").success(("red",), start, held)
 
 
-def test_a_rotation_counts_the_turn_added_up_along_the_episode_not_its_folded_snapshot():
+def test_a_wrong_way_rotation_past_45_degrees_does_not_fold_into_a_success():
     """A cube's snapshot yaw is defined modulo a quarter turn, so a 60-degree turn to the right looks like
-    30 degrees to the left; the episode loops add the yaw up step by step (`with_turns_since`)."""
+    30 degrees to the left; the episode loops add the yaw up step by step (`with_turns_since`), and a rotation
+    counts only when that turn went the named way. A right-way turn past a quarter turn still counts by the
+    pose it leaves, as before."""
     from trivla_drake.tasks.scene import with_turns_since
 
     far = {"green": ((0.4, -0.1, 0.0225), 0.0), "blue": ((0.55, -0.1, 0.0225), 0.0)}
@@ -142,6 +144,10 @@ def test_a_rotation_counts_the_turn_added_up_along_the_episode_not_its_folded_sn
     for yaw in range(-55, -25, 5):  # back to -30: now a right turn within the band
         scene = with_turns_since(scene, at(yaw))
     assert right.success(("red",), start, scene) and not left.success(("red",), start, scene)
+    scene = start
+    for yaw in range(5, 115, 5):  # turned left 110 degrees: the pose of a 20-degree left turn
+        scene = with_turns_since(scene, at(yaw))
+    assert scene.block_turns["red"] == pytest.approx(math.radians(110)) and left.success(("red",), start, scene)
 
 
 def test_placing_in_a_full_bowl_has_no_plan_and_says_why():

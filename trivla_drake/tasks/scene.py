@@ -85,8 +85,8 @@ class SceneState:
     # The arm's joint positions [rad].
     arm_q: np.ndarray = field(default_factory=lambda: HOME_ARM_Q.copy())
     # Colour -> the block's yaw turn [rad] since its task started, added up step by step (so a turn past
-    # 45 degrees is not folded back: a cube's snapshot yaw is only defined modulo a quarter turn). Set by
-    # the episode loops (`with_turns_since`); None for a lone snapshot.
+    # 45 degrees is not folded back: a cube's snapshot yaw is only defined modulo a quarter turn; it says
+    # which way a block was turned). Set by the episode loops (`with_turns_since`); None for a lone snapshot.
     block_turns: dict[str, float] | None = None
 
     # ---------------------------------------------------------------- geometry

@@ -395,10 +395,13 @@ class RotateBlock(Task):
         c = params[0]
         if not (current.on_table(c) and current.is_upright(c)) or current.is_held(c):
             return False
-        if current.block_turns is not None:  # added up along the episode: a wrong-way turn past 45 degrees
-            turned = self.sign * current.block_turns[c]  # is not folded into a right-way one
-        else:
-            turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
+        # A cube's pose repeats every quarter turn: the folded change from the start is what the scene shows (a
+        # left turn of 110 degrees leaves it as one of 20 does). The turn added up along the episode (when the
+        # loop tracks it) says which way it went, so a wrong-way turn past 45 degrees, which folds into the
+        # right-way band, does not count.
+        if current.block_turns is not None and self.sign * current.block_turns[c] <= 0:
+            return False
+        turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
         return ROTATE_MIN <= turned <= ROTATE_MAX
 
     def plan(self, params, scene):
