@@ -44,9 +44,15 @@ def test_trivla_demo_reports_success_control_rate_and_speed(tiny_checkpoint, lat
         assert report["control_hz"] < 25.0
 
 
-def test_oracle_demo_succeeds():
-    report = _demo("--policy", "oracle", "--task", "turn_on_light")
+def test_oracle_demo_succeeds_and_shows_a_progress_bar_unless_told_not_to():
+    report = _demo("--policy", "oracle", "--task", "turn_on_light", "--episodes", "2")
     assert report["success_rate"] == 1.0 and report["control_hz"] == pytest.approx(36.0)
+    command = [sys.executable, "-m", "trivla_drake.cli", "demo", "--policy", "oracle", "--task", "turn_on_light",
+               "--json"]
+    shown = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    hidden = subprocess.run([*command, "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert "demo turn_on_light" in shown.stderr and "success=1/1" in shown.stderr
+    assert "demo turn_on_light" not in hidden.stderr and json.loads(hidden.stdout)["success_rate"] == 1.0
 
 
 def test_unknown_task_lists_the_valid_ones():

@@ -103,7 +103,7 @@ def _cmd_demo(args) -> int:
                 or args.execute_steps is not None or args.ensemble_decay is not None):
             raise ValueError("--meshcat, --record, --instruction, --checkpoint, --noise-scale, --execute-steps and "
                              "--ensemble-decay go with --policy trivla")
-        report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed)
+        report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed, progress=not args.no_progress)
     else:
         from trivla_drake.eval.model_loading import load_model
 
@@ -120,7 +120,7 @@ def _cmd_demo(args) -> int:
         report = run_trivla_demo(
             model, args.task, episodes=args.episodes, seed=args.seed, latency=latency,
             instruction=args.instruction, meshcat=meshcat, max_seconds=args.max_seconds,
-            execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay,
+            execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay, progress=not args.no_progress,
         )
         if args.record:
             meshcat.StopRecording()
@@ -261,6 +261,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--port", type=int, default=None, help="Meshcat port")
     demo.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
     demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    demo.add_argument("--no-progress", action="store_true",
+                      help="no progress bar (on stderr, with the successes so far)")
     demo.set_defaults(run=_cmd_demo)
 
     add_collect_parser(commands)

@@ -70,6 +70,7 @@ def run_trivla_demo(
     ensemble_decay: float | None = None,
     stage_offset_s: float = PolicyRates.stage_offset_s,
     on_episode_start=None,
+    progress: bool = False,
 ) -> DemoReport:
     """Run `episodes` closed-loop episodes of `task_name` with TriVLA as Drake systems.
 
@@ -78,7 +79,7 @@ def run_trivla_demo(
     `execute_steps` K, Systems 1, 2 and 3 update every K control steps instead of once per chunk, and
     `ensemble_decay` averages the overlapping chunks (as `evaluate --execute-steps/--ensemble-decay`).
     `stage_offset_s` is `PolicyRates.stage_offset_s` (0: the stages' simultaneous updates of before
-    session 23, for comparison).
+    session 23, for comparison). `progress`: a bar on stderr with the successes so far.
     """
     task = get_task(task_name)
     latency = latency or LatencyModel()
@@ -95,7 +96,7 @@ def run_trivla_demo(
     limit = max_seconds if max_seconds is not None else task.max_steps * dt
     report = DemoReport(policy="trivla", latency=latency.mode if latency.mode != "fixed" else f"{latency.seconds}s",
                         execute_steps=steps, ensemble_decay=decay)
-    for episode in range(episodes):
+    for episode in _episodes_with_bar(report, episodes, task_name, progress):
         rng = np.random.default_rng(seed + episode)
         simulator = make_simulator(loop.diagram, scenario)
         context = simulator.get_mutable_context()
@@ -130,7 +131,19 @@ def run_trivla_demo(
     return report
 
 
-def run_oracle_demo(task_name: str, *, episodes: int = 1, seed: int = 0) -> DemoReport:
+def _episodes_with_bar(report: DemoReport, episodes: int, task_name: str, progress: bool):
+    """range(episodes), with a tqdm bar on stderr (when `progress`) that shows `report`'s successes so far."""
+    from tqdm import tqdm
+
+    with tqdm(total=episodes, desc=f"demo {task_name}", unit="ep", disable=not progress) as bar:
+        for episode in range(episodes):
+            yield episode
+            bar.set_postfix(success=f"{sum(e['success'] for e in report.episodes)}/{len(report.episodes)}",
+                            refresh=False)
+            bar.update(1)
+
+
+def run_oracle_demo(task_name: str, *, episodes: int = 1, seed: int = 0, progress: bool = False) -> DemoReport:
     """The scripted oracle on the same episodes (through the harness's action interface)."""
     from trivla_drake.eval.episode import run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
@@ -138,7 +151,7 @@ def run_oracle_demo(task_name: str, *, episodes: int = 1, seed: int = 0) -> Demo
     task = get_task(task_name)
     report = DemoReport(policy="oracle", latency="zero")
     dt = 1.0 / 36.0
-    for episode in range(episodes):
+    for episode in _episodes_with_bar(report, episodes, task_name, progress):
         start = time.perf_counter()
         result = run_episode(task_name, seed + episode, OraclePolicy(), max_steps=task.max_steps)
         report.wall_time += time.perf_counter() - start
