@@ -84,7 +84,8 @@ class Normalizer(nn.Module):
     def normalize_state(self, state: torch.Tensor) -> torch.Tensor:
         """(state - mean) / std, the std floored at STATE_STD_FLOOR: a dimension constant in the data (an
         unused joint) is not multiplied by 1e8 at test time. The shipped statistics' smallest std is 0.015."""
-        return (state - self.state_mean) / self.state_std.clamp_min(STATE_STD_FLOOR)
+        # + EPS as before the floor: for every std above it the result is bit-identical to earlier releases'.
+        return (state - self.state_mean) / (self.state_std.clamp_min(STATE_STD_FLOOR) + EPS)
 
     def normalize_action(self, action: torch.Tensor) -> torch.Tensor:
         """Maps [min, max] to [-1, 1]."""
