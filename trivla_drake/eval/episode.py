@@ -22,7 +22,6 @@ from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
 from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, prelude_task, sample_chain_scene
-from trivla_drake.tasks.scene import with_turns_since
 from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
 
 _log = logging.getLogger(__name__)
@@ -172,7 +171,6 @@ def _run_subtask(
     queue: list[np.ndarray] = []
     every_frame = recorder.needs_images(env)
     step = 0
-    scene = initial
     while step < max_steps:
         obs["instruction"] = instance.instruction
         if not queue:
@@ -186,8 +184,7 @@ def _run_subtask(
         recorder.add(obs, action, perturbed)
         obs = env.step(applied, images=every_frame)
         step += 1
-        scene = with_turns_since(scene, env.scene())
-        if task.success(instance.params, initial, scene):
+        if task.success(instance.params, initial, env.scene()):
             result.success, result.steps = True, step
             return result, obs
     result.steps = step

@@ -84,10 +84,6 @@ class SceneState:
     finger_width: float
     # The arm's joint positions [rad].
     arm_q: np.ndarray = field(default_factory=lambda: HOME_ARM_Q.copy())
-    # Colour -> the block's yaw turn [rad] since its task started, added up step by step (so a turn past
-    # 45 degrees is not folded back: a cube's snapshot yaw is only defined modulo a quarter turn; it says
-    # which way a block was turned). Set by the episode loops (`with_turns_since`); None for a lone snapshot.
-    block_turns: dict[str, float] | None = None
 
     # ---------------------------------------------------------------- geometry
     def block_position(self, color: str) -> np.ndarray:
@@ -307,15 +303,6 @@ def with_arm(spec: SceneSpec, arm_q) -> SceneSpec:
 
 
 # ---------------------------------------------------------------- small geometry helpers
-def with_turns_since(previous: SceneState, current: SceneState) -> SceneState:
-    """`current` with `block_turns` carried on from `previous` (whose turns, or 0, plus each block's yaw
-    change since `previous`): call it at every control step, where no block turns 45 degrees."""
-    earlier = previous.block_turns or {}
-    turns = {c: earlier.get(c, 0.0) + fold_quarter_turn(current.block_yaw(c) - previous.block_yaw(c))
-             for c in current.blocks}
-    return replace(current, block_turns=turns)
-
-
 def fold_quarter_turn(angle: float) -> float:
     """An angle folded into [-pi/4, pi/4) (modulo a quarter turn)."""
     return (angle + math.pi / 4) % (math.pi / 2) - math.pi / 4

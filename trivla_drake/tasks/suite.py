@@ -395,12 +395,9 @@ class RotateBlock(Task):
         c = params[0]
         if not (current.on_table(c) and current.is_upright(c)) or current.is_held(c):
             return False
-        # A cube's pose repeats every quarter turn: the folded change from the start is what the scene shows (a
-        # left turn of 110 degrees leaves it as one of 20 does). The turn added up along the episode (when the
-        # loop tracks it) says which way it went, so a wrong-way turn past 45 degrees, which folds into the
-        # right-way band, does not count.
-        if current.block_turns is not None and self.sign * current.block_turns[c] <= 0:
-            return False
+        # A cube's pose repeats every quarter turn, so this folded change is all a snapshot shows: a wrong-way turn
+        # of 45.5-70 degrees folds into the band too. Adding the yaw up along the episode was tried (session 65)
+        # and dropped: the yaw of a block held tilted in the grasp jumps between its axes, so the sum drifts.
         turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
         return ROTATE_MIN <= turned <= ROTATE_MAX
 
