@@ -207,9 +207,11 @@ def test_hand_body_keeps_clear_of_the_open_drawer():
     assert ("red",) not in get_task("push_block_left").candidates(_scene(further, drawer_opening=0.13))
 
 
-def test_a_task_list_names_each_task_once_and_a_repeated_one_is_refused_in_evaluate():
+def test_a_task_named_twice_is_refused_in_evaluate(capsys):
+    from trivla_drake.eval.cli_commands import main
     from trivla_drake.eval.evaluate import EvalConfig
 
-    assert parse_task_list("lift_block, lift_block,open_drawer") == ["lift_block", "open_drawer"]
     with pytest.raises(ValueError, match=r"--tasks names \['lift_block'\] more than once"):
         EvalConfig(policy="oracle", tasks=["lift_block", "lift_block"]).validate()
+    assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block,open_drawer,lift_block"]) == 2
+    assert "--tasks names ['lift_block'] more than once" in capsys.readouterr().err

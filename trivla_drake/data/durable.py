@@ -1,9 +1,11 @@
 """Files written durably: `fsync_file` puts a file's bytes on disk before it is renamed into place (so a power
-loss after the rename cannot leave an empty or partial file under the final name); `atomic_write_text`."""
+loss after the rename cannot leave an empty or partial file under the final name); `atomic_write_bytes` and
+`atomic_write_text` write through such a flushed temporary sibling."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 
 def fsync_file(path: str | os.PathLike) -> None:
@@ -12,15 +14,19 @@ def fsync_file(path: str | os.PathLike) -> None:
         os.fsync(stream.fileno())
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Writes `text` to `path` through a flushed temporary sibling and a rename: a crash leaves the old
-    file or the new one, never a part."""
-    from pathlib import Path
-
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Writes `data` to `path` (its folder made if missing) through a flushed temporary sibling and a rename: a
+    crash leaves the old file or the new one, never a part."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as stream:
-        stream.write(text)
+    with open(tmp, "wb") as stream:
+        stream.write(data)
         stream.flush()
         os.fsync(stream.fileno())
     os.replace(tmp, path)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """`atomic_write_bytes` of `text` in UTF-8."""
+    atomic_write_bytes(path, text.encode())

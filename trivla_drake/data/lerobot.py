@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from trivla_drake.data.durable import fsync_file
+from trivla_drake.data.durable import atomic_write_bytes, fsync_file
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -71,18 +71,8 @@ class NotADatasetError(ValueError):
 
 
 # ---------------------------------------------------------------- small file helpers
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as stream:
-        stream.write(data)
-        stream.flush()
-        os.fsync(stream.fileno())
-    os.replace(tmp, path)
-
-
 def _atomic_write_json(path: Path, data: Any) -> None:
-    _atomic_write_bytes(path, json.dumps(data, indent=2).encode())
+    atomic_write_bytes(path, json.dumps(data, indent=2).encode())
 
 
 def _atomic_write_table(path: Path, table: pa.Table) -> None:

@@ -8,6 +8,7 @@ so a run with `workers` processes gives exactly the results of a serial run with
 from __future__ import annotations
 
 import math
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
@@ -77,7 +78,7 @@ class EvalConfig:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
         for name in self.tasks:
             get_task(name)
-        repeated = sorted({name for name in self.tasks if list(self.tasks).count(name) > 1})
+        repeated = sorted(name for name, count in Counter(self.tasks).items() if count > 1)
         if repeated:  # the same seeds twice would halve the standard error's variance for nothing
             raise ValueError(f"--tasks names {repeated} more than once")
         if self.episodes < 0 or self.chains < 0:

@@ -397,7 +397,8 @@ class RotateBlock(Task):
             return False
         # A cube's pose repeats every quarter turn, so this folded change is all a snapshot shows: a wrong-way turn
         # of 45.5-70 degrees folds into the band too. Adding the yaw up along the episode was tried (session 65)
-        # and dropped: the yaw of a block held tilted in the grasp jumps between its axes, so the sum drifts.
+        # and dropped: the policy holds blocks tilted 30-40 degrees, and a tilted cube's yaw (from its most
+        # horizontal axis) is no turn about the vertical, so the sum cannot be trusted.
         turned = self.sign * fold_quarter_turn(current.block_yaw(c) - initial.block_yaw(c))
         return ROTATE_MIN <= turned <= ROTATE_MAX
 
@@ -534,11 +535,10 @@ def get_task(name: str) -> Task:
 
 
 def parse_task_list(text: str | None) -> list[str]:
-    """'all' (or None) -> every task; 'a,b' -> those, each once and checked (UnknownTaskError lists valid
-    names)."""
+    """'all' (or None) -> every task; 'a,b' -> those, each checked (UnknownTaskError lists valid names)."""
     if text is None or text.strip() in ("", "all"):
         return list(TASK_NAMES)
-    names = list(dict.fromkeys(part.strip() for part in text.split(",") if part.strip()))  # each task once
+    names = [part.strip() for part in text.split(",") if part.strip()]
     for name in names:
         get_task(name)
     return names

@@ -23,16 +23,22 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
     tmp.mkdir()
     try:
         yield tmp
-        if folder.exists():  # set aside, not deleted, until the new one is in place: a crash loses neither
-            old = folder.with_name(f".old-{folder.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-            os.rename(folder, old)
-            os.rename(tmp, folder)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, folder)
+        replace_folder(tmp, folder)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def replace_folder(new: Path, target: Path) -> None:
+    """Renames the complete folder `new` to `target`. An older `target` is set aside, not deleted, until `new` is in
+    place, so a crash in between loses neither (the set-aside copy keeps its contents under `.old-*`)."""
+    if not target.exists():
+        os.rename(new, target)
+        return
+    old = target.with_name(f".old-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    os.rename(target, old)
+    os.rename(new, target)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def ensure_cached_folder(folder: str | os.PathLike, settings: dict[str, Any], make: Callable[[], Path], *,

@@ -23,6 +23,7 @@ from typing import Any
 import torch
 
 from trivla_drake.nn.checkpoint import save_checkpoint
+from trivla_drake.train.atomic_folder import replace_folder
 from trivla_drake.train.config import TrainConfig
 
 CHECKPOINTS_DIR = "checkpoints"
@@ -53,13 +54,7 @@ def _fsync_tree(directory: Path) -> None:
 def _publish(tmp: Path, target: Path) -> None:
     """Renames the complete folder `tmp` to `target`, replacing an older `target` if there is one."""
     _fsync_tree(tmp)
-    if target.exists():
-        old = target.with_name(f".old-{target.name}-{uuid.uuid4().hex[:8]}")
-        os.rename(target, old)
-        os.rename(tmp, target)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, target)
+    replace_folder(tmp, target)
     fd = os.open(target.parent, os.O_RDONLY)
     try:
         os.fsync(fd)
