@@ -56,3 +56,21 @@ def test_executor_holds_without_a_chunk_and_follows_one():
     assert executor.played_actions(context) == 10
     assert end[2] - start[2] == pytest.approx(0.05, abs=1e-9)  # 10 steps, then it holds
     assert executor.GetOutputPort("gripper_target").Eval(context)[0] == 0.0
+
+
+def test_outputs_do_not_feed_through_from_inputs():
+    """The executors' and the diff-IK's outputs read their discrete state alone: Drake must not see a direct
+    feedthrough (a false algebraic loop in other wirings, and needless recomputation)."""
+    from trivla_drake.systems.action_executor import ActionExecutor
+    from trivla_drake.systems.diffik_system import DifferentialIKSystem
+
+    for system in (ActionChunkExecutor(), ActionExecutor(), DifferentialIKSystem()):
+        for i in range(system.num_input_ports()):
+            for o in range(system.num_output_ports()):
+                assert not system.HasDirectFeedthrough(i, o), (type(system).__name__, i, o)
+
+
+@pytest.mark.parametrize("keep", [0, -1, 2.5, True])
+def test_keep_chunks_must_be_a_positive_integer(keep):
+    with pytest.raises(ValueError, match="keep_chunks"):
+        ActionChunkExecutor(ensemble_decay=0.1, keep_chunks=keep)

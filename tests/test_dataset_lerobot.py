@@ -92,6 +92,14 @@ def test_not_a_dataset_is_a_clear_error(tmp_path):
     (tmp_path / "meta/info.json").write_text("{not json")
     with pytest.raises(NotADatasetError, match="unreadable"):
         LeRobotReader(tmp_path)
+    # The writer (collect resuming into --out) names the file too, whatever is wrong with it.
+    for text in ("{not json", '{"codebase_version": "v3.0"}', "[]"):
+        (tmp_path / "meta/info.json").write_text(text)
+        with pytest.raises(NotADatasetError, match="meta/info.json is not a readable LeRobot info file"):
+            LeRobotWriter(tmp_path, fps=FPS, features=FEATURES)
+    (tmp_path / "a_file").write_text("not a folder")
+    with pytest.raises(NotADatasetError, match="a_file is a file, not a dataset folder"):
+        LeRobotWriter(tmp_path / "a_file", fps=FPS, features=FEATURES)
 
 
 def test_a_crash_before_the_commit_loses_only_that_episode(tmp_path, monkeypatch):
@@ -113,12 +121,15 @@ def test_a_crash_before_the_commit_loses_only_that_episode(tmp_path, monkeypatch
     reader = LeRobotReader(root)
     assert reader.num_episodes == 2 and reader.num_frames == 11
     assert reader.episode_frames(1)["action"].shape == (6, 7)
-    # Reopening resumes: the next episode takes index 2 and overwrites the orphaned files.
+    # Reopening resumes: the next episode (another one, shorter) takes index 2 and overwrites the orphaned files.
     writer = LeRobotWriter(root, fps=FPS, features=FEATURES)
     assert writer.num_episodes == 2
+    frames, video = _episode(5, 11)
     writer.add_episode(frames, "new task", videos={"observation.images.static": video})
     reader = LeRobotReader(root)
-    assert reader.num_episodes == 3 and reader.num_frames == 20
+    assert reader.num_episodes == 3 and reader.num_frames == 16
+    np.testing.assert_array_equal(reader.episode_frames(2)["action"], frames["action"])
+    assert len(reader.episode_video(2, "observation.images.static")) == 5
     assert json.loads((root / "meta/info.json").read_text())["total_episodes"] == 3
     with pytest.raises(ValueError, match="fps"):
         LeRobotWriter(root, fps=10.0, features=FEATURES)

@@ -226,27 +226,89 @@ def test_near_singular_configurations_give_bounded_output(kinematics, q_start):
             q = result.q_next
 
 
-def test_solver_failure_returns_a_hold(kinematics, monkeypatch):
-    # A slow velocity limit makes the bounds bind, so the tick needs OSQP; one iteration cannot converge.
+def test_a_failed_osqp_run_is_solved_exactly_by_active_sets(kinematics):
+    # A slow velocity limit makes the bounds bind, so the tick needs OSQP; one iteration cannot converge. The box QP
+    # is then solved by `solve_box_qp`: the same answer as OSQP given the iterations it needs.
     params = DiffIKParams(velocity_scale=0.05, max_iter=1)
     target = _offset_pose(kinematics.ee_pose(HOME), (0.2, 0.0, 0.0))
     result = OsqpDifferentialIK(kinematics, params).solve(HOME, target)
-    assert result.status is DiffIKStatus.SOLVER_FAILED and not result.ok
-    np.testing.assert_array_equal(result.v, np.zeros(7))
-    np.testing.assert_array_equal(result.q_next, HOME)
-    np.testing.assert_allclose(result.pose_error[:3], [0.2, 0.0, 0.0], atol=1e-12)
+    converged = OsqpDifferentialIK(kinematics, dataclasses.replace(params, max_iter=20000)).solve(HOME, target)
+    assert result.status is DiffIKStatus.SOLVED and converged.status is DiffIKStatus.SOLVED
+    np.testing.assert_allclose(result.v, converged.v, atol=1e-9)
+    assert np.abs(result.v).max() > 0.01
 
-    # An infeasible answer comes back as huge numbers, not NaN: it must not leak out.
-    ik = OsqpDifferentialIK(kinematics, dataclasses.replace(params, max_iter=1000))
-    real_solve = ik._solver.solve
+
+def test_badly_scaled_weights_do_not_freeze_the_arm(kinematics, monkeypatch):
+    """With a large angular weight OSQP fails some ticks for good (the same problem returns the next tick, so a hold
+    would freeze the arm); the active-set solve answers them all."""
+    import trivla_drake.robot.osqp_diffik as diffik
+
+    def problems():
+        rng = np.random.default_rng(5)
+        for i in range(300):
+            q = rng.uniform(kinematics.q_lower, kinematics.q_upper)
+            if i % 3 == 0:
+                q[3] = rng.uniform(kinematics.q_upper[3] - 0.05, kinematics.q_upper[3])
+                q[5] = rng.uniform(-0.0175, 0.05)
+            target = np.eye(4)
+            target[:3, :3] = pin.Quaternion(rng.normal(size=4)).normalized().matrix()
+            target[:3, 3] = rng.uniform(-2, 2, 3)
+            yield q, target
+
+    params = DiffIKParams(angular_weight=100.0)
+    real = diffik.solve_box_qp
+    monkeypatch.setattr(diffik, "solve_box_qp", lambda *args, **kwargs: None)
+    ik = OsqpDifferentialIK(kinematics, params)
+    hard = [(q, target) for q, target in problems() if not ik.solve(q, target).ok]
+    if not hard:
+        pytest.skip("this OSQP build converges on every problem: nothing for the fallback to answer")
+    held = ik.solve(*hard[0])
+    assert held.status is DiffIKStatus.SOLVER_FAILED and not held.v.any()  # the hold without the fallback
+    monkeypatch.setattr(diffik, "solve_box_qp", real)
+    for q, target in hard:
+        result = ik.solve(q, target)
+        assert result.status is DiffIKStatus.SOLVED and np.abs(result.v).max() > 1e-3
+        _assert_safe(kinematics, params, q, result)
+
+
+def test_box_qp_meets_the_kkt_conditions_on_random_problems():
+    from trivla_drake.robot.osqp_diffik import solve_box_qp
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        a = rng.normal(size=(7, 7))
+        hessian, gradient = a @ a.T + 0.01 * np.eye(7), 5 * rng.normal(size=7)
+        lower, upper = -rng.uniform(0.1, 1.0, 7), rng.uniform(0.1, 1.0, 7)
+        x = solve_box_qp(hessian, gradient, lower, upper, rng.uniform(lower, upper))
+        assert x is not None and (lower <= x).all() and (x <= upper).all()
+        residual = hessian @ x + gradient
+        inside = (x > lower + 1e-12) & (x < upper - 1e-12)
+        np.testing.assert_allclose(residual[inside], 0.0, atol=1e-8)
+        assert (residual[x <= lower + 1e-12] >= -1e-8).all() and (residual[x >= upper - 1e-12] <= 1e-8).all()
+
+
+def test_solver_failure_returns_a_hold(kinematics, monkeypatch):
+    import trivla_drake.robot.osqp_diffik as diffik
+
+    params = DiffIKParams(velocity_scale=0.05, max_iter=1000)
+    target = _offset_pose(kinematics.ee_pose(HOME), (0.2, 0.0, 0.0))
+    # An infeasible answer comes back as huge numbers, not NaN: it must not leak out, and when the active-set
+    # solve fails too the tick holds.
+    ik = OsqpDifferentialIK(kinematics, params)
+    real_solve, real_box = ik._solver.solve, diffik.solve_box_qp
     infeasible = SimpleNamespace(
         x=np.full(7, 1e9), info=SimpleNamespace(status_val=osqp.SolverStatus.OSQP_PRIMAL_INFEASIBLE)
     )
     monkeypatch.setattr(ik._solver, "solve", lambda **kwargs: infeasible)
+    monkeypatch.setattr(diffik, "solve_box_qp", lambda *args, **kwargs: None)
     result = ik.solve(HOME, target)
-    assert result.status is DiffIKStatus.SOLVER_FAILED
+    assert result.status is DiffIKStatus.SOLVER_FAILED and not result.ok
     np.testing.assert_array_equal(result.v, np.zeros(7))
-    # The next healthy tick moves again.
+    np.testing.assert_array_equal(result.q_next, HOME)
+    np.testing.assert_allclose(result.pose_error[:3], [0.2, 0.0, 0.0], atol=1e-12)
+    # With the active-set solve the same tick moves; the next healthy OSQP tick as well.
+    monkeypatch.setattr(diffik, "solve_box_qp", real_box)
+    assert ik.solve(HOME, target).status is DiffIKStatus.SOLVED
     monkeypatch.setattr(ik._solver, "solve", real_solve)
     result = ik.solve(HOME, target)
     assert result.status is DiffIKStatus.SOLVED and np.abs(result.v).max() > 0.01

@@ -52,3 +52,45 @@ def test_camera_on_unknown_frame_is_named(scenario):
     scenario.cameras["wrist_camera"].X_PB.base_frame = "panda::no_such_link"
     with pytest.raises(ValueError, match="cameras.wrist_camera.X_PB.base_frame"):
         make_station(scenario)
+
+
+def _move_panda_base(scenario):
+    import pydrake.common.schema as schema
+
+    for directive in scenario.directives:
+        if directive.add_weld and directive.add_weld.child == "panda::panda_link0":
+            moved = schema.Transform()
+            moved.translation = [0.0, 0.2, 0.0]
+            directive.add_weld.X_PC = moved
+            return
+    raise AssertionError("the default scenario welds panda::panda_link0")
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (lambda s: setattr(s.cameras["static_camera"], "fps", float("nan")), "cameras.static_camera.fps"),
+    (lambda s: setattr(s.cameras["static_camera"], "fps", float("inf")), "cameras.static_camera.fps"),
+    (lambda s: setattr(s.cameras["static_camera"], "width", 0), "cameras.static_camera.width"),
+    (lambda s: setattr(s.cameras["wrist_camera"], "depth", True), "cameras.wrist_camera.depth"),
+    (lambda s: setattr(s.cameras["wrist_camera"], "capture_offset", 0.05), "cameras.wrist_camera.capture_offset"),
+    (lambda s: setattr(s.cameras["wrist_camera"], "output_delay", 0.1), "cameras.wrist_camera.output_delay"),
+    (lambda s: setattr(s.cameras["wrist_camera"], "renderer_class", "RenderEngineGl"),
+     "cameras.wrist_camera.renderer_class"),
+    (lambda s: s.panda_driver.arm_kp.__setitem__(3, -1.0), r"panda_driver.arm_kp\[3\]"),
+    (lambda s: setattr(s.panda_driver, "finger_kd", float("inf")), "panda_driver.finger_kd"),
+    (lambda s: setattr(s.plant_config, "time_step", -0.01), "plant_config.time_step"),
+    (_move_panda_base, "panda_link0 must be welded at the world origin"),
+])
+def test_values_the_station_cannot_honour_are_named(scenario, mutate, field):
+    """Each of these used to be ignored, give a wrong hand pose (a moved base) or abort the whole process (a
+    negative gain or time step)."""
+    mutate(scenario)
+    with pytest.raises(ValueError, match=field):
+        make_station(scenario)
+
+
+def test_camera_background_other_than_the_renderers_is_named(scenario):
+    from pydrake.geometry import Rgba
+
+    scenario.cameras["static_camera"].background = Rgba(0.2, 0.2, 0.2, 1.0)
+    with pytest.raises(ValueError, match="cameras.static_camera.background"):
+        make_station(scenario)

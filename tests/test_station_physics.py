@@ -49,6 +49,8 @@ def test_nan_target_is_rejected_and_the_arm_holds(closed_loop, caplog):
     with caplog.at_level(logging.ERROR):
         closed_loop.go([np.nan, 0.0, 0.3], 0.08, 0.5)
     assert "ee_target" in caplog.text and "NaN" in caplog.text
+    # Said once when it starts, not on every one of the half second's 50 ticks.
+    assert sum("rejected" in r.getMessage() for r in caplog.records) == 1
     status = closed_loop.diffik.GetOutputPort("status").Eval(closed_loop.diffik.GetMyContextFromRoot(closed_loop.context))
     assert status[0] == 3.0
     q_after = closed_loop.output("panda.state")[:7]

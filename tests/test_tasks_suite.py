@@ -215,3 +215,35 @@ def test_a_task_named_twice_is_refused_in_evaluate(capsys):
         EvalConfig(policy="oracle", tasks=["lift_block", "lift_block"]).validate()
     assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block,open_drawer,lift_block"]) == 2
     assert "--tasks names ['lift_block'] more than once" in capsys.readouterr().err
+
+
+def test_collect_refuses_what_evaluate_refuses():
+    """A task named twice would record every attempt twice; a seed past 32 bits wraps onto another's scenes."""
+    from trivla_drake.eval.collect import CollectConfig
+    from trivla_drake.eval.evaluate import EvalConfig
+
+    for kwargs, message in (({"tasks": ["lift_block", "lift_block"]}, r"--tasks names \['lift_block'\] more than once"),
+                            ({"tasks": ["lift_block"], "seed": 2**32}, "--seed must be an integer from 0 to 4294967295"),
+                            ({"tasks": ["lift_block"], "seed": -1}, "--seed must be an integer"),
+                            ({"tasks": ["open_drawer"], "stacked_picks": 0.5}, "--stacked-picks applies to")):
+        with pytest.raises(ValueError, match=message):
+            CollectConfig(out="unused", episodes_per_task=1, **kwargs).validate()
+        evaluate_kwargs = dict(kwargs, stacked_picks=bool(kwargs.get("stacked_picks")))
+        with pytest.raises(ValueError, match=message):
+            EvalConfig(episodes=1, **evaluate_kwargs).validate()
+
+
+def test_unstack_plan_without_a_free_spot_says_so():
+    from trivla_drake.tasks.scene import Layout, sample_scene, scene_from_spec
+    from trivla_drake.tasks.suite import _free_spot
+
+    layout, task = Layout.default(), get_task("unstack_block")
+    rng = np.random.default_rng(0)
+    for _ in range(3000):
+        scene = scene_from_spec(sample_scene(rng, layout, stack=True), layout)
+        top = next(c for c in scene.blocks if scene.base_of(c))
+        if _free_spot(scene, top, scene.block_position(scene.base_of(top))) is None:
+            with pytest.raises(ValueError, match=f"unstack_block: no free place on the table to set the {top} block"):
+                task.plan((top, scene.base_of(top)), scene)
+            return
+    pytest.skip("no stacked scene without a free spot in 3000 draws")

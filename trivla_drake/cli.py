@@ -13,6 +13,9 @@ from pathlib import Path
 # turn a 0.1 s inference into seconds; passive waiting keeps them polite. Must precede torch.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# The task `demo` runs when not told one.
+DEMO_TASK = "place_in_bowl"
+
 
 def _print_result(result: dict, as_json: bool, title: str) -> None:
     if as_json:
@@ -96,7 +99,21 @@ def _cmd_demo(args) -> int:
     from trivla_drake.systems.latency import LatencyModel
     from trivla_drake.tasks.suite import get_task
 
+    if args.chains is not None:
+        if args.chains < 1:
+            raise ValueError(f"--chains must be at least 1, got {args.chains}")
+        given = [flag for flag, value in (("--task", args.task), ("--instruction", args.instruction),
+                                          ("--episodes", args.episodes)) if value is not None]
+        if given:
+            raise ValueError(f"--chains draws every chain's tasks and instructions: leave out {', '.join(given)}")
+        if args.policy == "oracle":
+            raise ValueError("--chains runs TriVLA as Drake systems; the oracle's chains: "
+                             "trivla-drake evaluate --policy oracle --episodes 0 --chains N")
+    args.task = args.task or DEMO_TASK
+    args.episodes = 1 if args.episodes is None else args.episodes
     get_task(args.task)  # an unknown name fails here, listing the valid ones
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
     latency = LatencyModel.parse(args.latency)
     if args.policy == "oracle":
         if (args.meshcat or args.record or args.instruction or args.checkpoint or args.noise_scale is not None
@@ -117,11 +134,16 @@ def _cmd_demo(args) -> int:
             print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
         if args.record:
             meshcat.StartRecording(frames_per_second=30.0)
-        report = run_trivla_demo(
-            model, args.task, episodes=args.episodes, seed=args.seed, latency=latency,
-            instruction=args.instruction, meshcat=meshcat, max_seconds=args.max_seconds,
-            execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay, progress=not args.no_progress,
-        )
+        settings = dict(seed=args.seed, latency=latency, meshcat=meshcat, max_seconds=args.max_seconds,
+                        execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay,
+                        progress=not args.no_progress)
+        if args.chains is not None:
+            from trivla_drake.eval.demo_chains import run_trivla_chain_demo
+
+            report = run_trivla_chain_demo(model, chains=args.chains, **settings)
+        else:
+            report = run_trivla_demo(model, args.task, episodes=args.episodes, instruction=args.instruction,
+                                     **settings)
         if args.record:
             meshcat.StopRecording()
             meshcat.PublishRecording()
@@ -130,13 +152,29 @@ def _cmd_demo(args) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        print("| episode | task | instruction | success | sim time [s] |\n| --- | --- | --- | --- | --- |")
-        for i, e in enumerate(result["episodes"]):
-            print(f"| {i} | {e['task']} | {e['instruction']} | {'yes' if e['success'] else 'no: ' + e['reason']} "
-                  f"| {e['sim_time']:.2f} |")
-        print(f"\nsuccess rate {result['success_rate']:.2f}, control {result['control_hz']:.1f} Hz in sim time, "
-              f"real-time factor {result['realtime_factor']:.2f} ({result['policy']}, latency {result['latency']})")
+        print(format_demo_markdown(result))
     return 0
+
+
+def format_demo_markdown(result: dict) -> str:
+    """`demo`'s report (`DemoReport.as_dict`, or a chain demo's) as Markdown: a row per episode (per chain task),
+    then the success rate (the chains' table and Avg. Len), the control rate and the real-time factor."""
+    from trivla_drake.eval.evaluate import format_chain_markdown
+
+    chains = "chain_runs" in result
+    lines = ["| chain | task | instruction | success | sim time [s] |" if chains else
+             "| episode | task | instruction | success | sim time [s] |", "| --- | --- | --- | --- | --- |"]
+    rows = ([(f"{i} ({k + 1}/5)", e) for i, c in enumerate(result["chain_runs"]) for k, e in enumerate(c["subtasks"])]
+            if chains else list(enumerate(result["episodes"])))
+    for label, e in rows:
+        lines.append(f"| {label} | {e['task']} | {e['instruction']} | {'yes' if e['success'] else 'no: ' + e['reason']} "
+                     f"| {e['sim_time']:.2f} |")
+    lines += format_chain_markdown(result) if chains else []
+    measure = (f"Avg. Len {result['chain_avg_len']:.2f}" if chains
+               else f"success rate {result['success_rate']:.2f}")
+    lines.append(f"\n{measure}, control {result['control_hz']:.1f} Hz in sim time, real-time factor "
+                 f"{result['realtime_factor']:.2f} ({result['policy']}, latency {result['latency']})")
+    return "\n".join(lines)
 
 
 def _names(comma_separated: str) -> list[str]:
@@ -246,9 +284,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="closed-loop episodes: TriVLA as Drake systems, or the oracle")
     demo.add_argument("--policy", choices=("trivla", "oracle"), default="trivla")
     demo.add_argument("--checkpoint", help="TriVLA checkpoint (default: models/trivla_cpu)")
-    demo.add_argument("--task", default="place_in_bowl", help="task name (see `trivla-drake evaluate --help`)")
+    demo.add_argument("--task", default=None, help=f"task name (default {DEMO_TASK}; see `trivla-drake evaluate --help`)")
     demo.add_argument("--instruction", help="say this instead of the task's own instruction")
-    demo.add_argument("--episodes", type=int, default=1)
+    demo.add_argument("--episodes", type=int, default=None, help="episodes (default 1)")
+    demo.add_argument("--chains", type=int, default=None, metavar="N",
+                      help="instead of episodes of one task, N 5-task chains in one simulation each, the instruction "
+                           "input changed as each task is done (chain j starts as `evaluate --chains`'s chain j); "
+                           "reports Avg. Len")
     demo.add_argument("--seed", type=int, default=EVAL_BASE_SEED,
                       help=f"base seed (default {EVAL_BASE_SEED}: scenes unseen by demonstrations collected with seed 0)")
     demo.add_argument("--latency", default="zero", help="zero, measured (each inference's wall time) or seconds")

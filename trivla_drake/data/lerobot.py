@@ -211,6 +211,8 @@ class LeRobotWriter:
                 raise ValueError(f"feature name {name!r} must not contain '/'")
         self.video_keys = [k for k, v in self.features.items() if v["dtype"] == "video"]
         self.vector_keys = [k for k, v in features.items() if v["dtype"] != "video"]
+        if self.root.exists() and not self.root.is_dir():
+            raise NotADatasetError(f"{self.root} is a file, not a dataset folder: choose another --out")
         if (self.root / INFO_PATH).is_file():
             self._open_existing()
         else:
@@ -225,12 +227,18 @@ class LeRobotWriter:
             self._write_info()
 
     def _open_existing(self) -> None:
-        info = json.loads((self.root / INFO_PATH).read_text())
+        path = self.root / INFO_PATH
+        try:
+            info = json.loads(path.read_text())
+            fps, features = float(info["fps"]), dict(info["features"])
+        except (ValueError, KeyError, TypeError) as error:
+            raise NotADatasetError(f"{path} is not a readable LeRobot info file ({type(error).__name__}: {error}): "
+                                   "not a dataset this writer can add to; choose another --out") from error
         if info.get("codebase_version") != CODEBASE_VERSION:
             raise NotADatasetError(f"{self.root}: codebase_version {info.get('codebase_version')!r}, expected {CODEBASE_VERSION}")
-        if not math.isclose(float(info["fps"]), self.fps):
-            raise ValueError(f"{self.root} was written at fps {info['fps']}, not {self.fps}: use another --out")
-        old = {k: (v["dtype"], list(v["shape"])) for k, v in info["features"].items()}
+        if not math.isclose(fps, self.fps):
+            raise ValueError(f"{self.root} was written at fps {fps}, not {self.fps}: use another --out")
+        old = {k: (v["dtype"], list(v["shape"])) for k, v in features.items()}
         new = {k: (v["dtype"], list(v["shape"])) for k, v in self.features.items()}
         if old != new:
             raise ValueError(f"{self.root} has features {old}, these episodes have {new}: use another --out")

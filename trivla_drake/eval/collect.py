@@ -60,7 +60,7 @@ from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.eval.policy_takeover import PolicyTakeover
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import TASK_NAMES, get_task
+from trivla_drake.tasks.suite import TASK_NAMES, check_run_settings
 
 _log = logging.getLogger(__name__)
 STATE_NAMES = (
@@ -150,8 +150,7 @@ class CollectConfig:
         if self.stacked_picks and self.prelude_tasks:
             raise ValueError("--stacked-picks and --prelude-tasks cannot be combined: a prelude redraws the block to "
                              "pick up in the scene it leaves")
-        for name in self.tasks:
-            get_task(name)
+        check_run_settings(self.tasks, self.seed, self.stacked_picks)
 
     def disturbance(self) -> Disturbance | None:
         """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, the drifts of

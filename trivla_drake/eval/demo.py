@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.geometry import Meshcat
 
-from trivla_drake.eval.closed_loop import make_closed_loop
+from trivla_drake.eval.closed_loop import ClosedLoop, make_closed_loop
 from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay, check_execute_steps
 from trivla_drake.nn import TriVLA
 from trivla_drake.station.scenario import Scenario, load_scenario, make_simulator
@@ -19,7 +19,7 @@ from trivla_drake.tasks.sim import StationHandles
 from trivla_drake.tasks.suite import get_task, sample_task_instance
 
 # How often the success predicate is checked [s of sim time].
-CHECK_PERIOD = 0.25
+CHECK_PERIOD_S = 0.25
 
 
 @dataclass
@@ -35,6 +35,13 @@ class DemoReport:
     sim_time: float = 0.0
     wall_time: float = 0.0
     played_actions: int = 0
+
+    def count_run(self, wall_s: float, context, executor) -> None:
+        """Adds one simulation's wall time [s], simulated time and played actions (the chunk executor's, in the
+        root `context`)."""
+        self.wall_time += wall_s
+        self.sim_time += context.get_time()
+        self.played_actions += executor.played_actions(executor.GetMyContextFromRoot(context))
 
     def as_dict(self) -> dict:
         successes = [e["success"] for e in self.episodes]
@@ -81,23 +88,14 @@ def run_trivla_demo(
     session 23, for comparison). `progress`: a bar on stderr with the successes so far.
     """
     task = get_task(task_name)
-    latency = latency or LatencyModel()
-    horizon = int(model.config.policy.action_horizon)
-    steps = horizon if execute_steps is None else check_execute_steps(execute_steps, horizon, "execute_steps")
-    decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay, "ensemble_decay")
-    rates = dataclasses.replace(PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency),
-                                stage_offset_s=stage_offset_s)
-    scenario = scenario or load_scenario()
-    loop = make_closed_loop(scenario, model, rates=rates, meshcat=meshcat)
-    handles = StationHandles(loop.station)
-    executor = loop.policy.systems["executor"]
-    dt = executor.action_space.dt
-    limit = max_seconds if max_seconds is not None else task.max_steps * dt
-    report = DemoReport(policy="trivla", latency=latency.mode if latency.mode != "fixed" else f"{latency.seconds}s",
-                        execute_steps=steps, ensemble_decay=decay)
+    demo = build_demo_loop(model, latency=latency, scenario=scenario, meshcat=meshcat, execute_steps=execute_steps,
+                           ensemble_decay=ensemble_decay, stage_offset_s=stage_offset_s)
+    loop, handles, executor = demo.loop, demo.handles, demo.executor
+    limit = max_seconds if max_seconds is not None else task.max_steps * executor.action_space.dt
+    report = demo.new_report()
     for episode in _episodes_with_bar(report, episodes, task_name, progress):
         rng = np.random.default_rng(seed + episode)
-        simulator = make_simulator(loop.diagram, scenario)
+        simulator = make_simulator(loop.diagram, demo.scenario)
         context = simulator.get_mutable_context()
         spec, instance = sample_task_instance(task, rng, handles.layout(context))
         handles.apply(context, spec)
@@ -107,25 +105,74 @@ def run_trivla_demo(
         simulator.Initialize()
         if on_episode_start is not None:
             on_episode_start(episode)
-        initial = handles.read(context)
-        success, reason = False, "timeout"
         start = time.perf_counter()
-        try:
-            while context.get_time() < limit - 1e-9:
-                simulator.AdvanceTo(min(limit, context.get_time() + CHECK_PERIOD))
-                if task.success(instance.params, initial, handles.read(context)):
-                    success, reason = True, ""
-                    break
-        except RuntimeError as error:  # a failed simulation is this episode's failure
-            reason = f"simulation failed: {error}"
-        report.wall_time += time.perf_counter() - start
-        report.sim_time += context.get_time()
-        report.played_actions += executor.played_actions(executor.GetMyContextFromRoot(context))
+        success, reason = advance_until_success(simulator, handles, task, instance.params, limit)
+        report.count_run(time.perf_counter() - start, context, executor)
         report.episodes.append({
             "task": task_name, "instruction": text, "seed": seed + episode, "success": success,
             "sim_time": context.get_time(), "reason": reason,
         })
     return report
+
+
+@dataclass
+class DemoLoop:
+    """The closed loop a demo runs, with the settings its report records."""
+
+    loop: ClosedLoop
+    handles: StationHandles
+    scenario: Scenario
+    latency: LatencyModel
+    execute_steps: int
+    ensemble_decay: float | None
+
+    @property
+    def executor(self):
+        return self.loop.policy.systems["executor"]
+
+    def new_report(self) -> DemoReport:
+        latency = self.latency.mode if self.latency.mode != "fixed" else f"{self.latency.seconds}s"
+        return DemoReport(policy="trivla", latency=latency, execute_steps=self.execute_steps,
+                          ensemble_decay=self.ensemble_decay)
+
+
+def build_demo_loop(
+    model: TriVLA,
+    *,
+    latency: LatencyModel | None = None,
+    scenario: Scenario | None = None,
+    meshcat: Meshcat | None = None,
+    execute_steps: int | None = None,
+    ensemble_decay: float | None = None,
+    stage_offset_s: float = PolicyRates.stage_offset_s,
+) -> DemoLoop:
+    """The closed loop of `make_closed_loop` with the demo's chunk execution (`execute_steps`, `ensemble_decay`:
+    ValueError naming the field when out of range) and its station handles."""
+    latency = latency or LatencyModel()
+    horizon = int(model.config.policy.action_horizon)
+    steps = horizon if execute_steps is None else check_execute_steps(execute_steps, horizon, "execute_steps")
+    decay = None if ensemble_decay is None else check_ensemble_decay(ensemble_decay, "ensemble_decay")
+    rates = dataclasses.replace(PolicyRates.replanning_every(steps, ensemble_decay=decay, latency=latency),
+                                stage_offset_s=stage_offset_s)
+    scenario = scenario or load_scenario()
+    loop = make_closed_loop(scenario, model, rates=rates, meshcat=meshcat)
+    return DemoLoop(loop, StationHandles(loop.station), scenario, latency, steps, decay)
+
+
+def advance_until_success(simulator, handles: StationHandles, task, params, until: float) -> tuple[bool, str]:
+    """Advances `simulator` to sim time `until` [s], checking `task`'s predicate (against the scene as it is now)
+    every CHECK_PERIOD_S; returns (success, why not: "" on success). A failed simulation is a failure with its
+    message, not an exception."""
+    context = simulator.get_mutable_context()
+    initial = handles.read(context)
+    try:
+        while context.get_time() < until - 1e-9:
+            simulator.AdvanceTo(min(until, context.get_time() + CHECK_PERIOD_S))
+            if task.success(params, initial, handles.read(context)):
+                return True, ""
+    except RuntimeError as error:  # a failed simulation is this episode's failure
+        return False, f"simulation failed: {error}"
+    return False, "timeout"
 
 
 def _episodes_with_bar(report: DemoReport, episodes: int, task_name: str, progress: bool):

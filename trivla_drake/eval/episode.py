@@ -40,7 +40,11 @@ def shared_env(image_size: int | None, scenario: Scenario | None = None) -> Tabl
 
 
 def derive_seed(seed: int, *keys: int | str) -> int:
-    """A 32-bit seed from a base seed and keys (names hashed with crc32, stable across processes)."""
+    """A 32-bit seed from a base seed and keys (names hashed with crc32, stable across processes).
+
+    numpy's SeedSequence drops trailing zero words, so `(seed, k)` and `(seed, k, 0)` give one seed: every purpose
+    passes a fixed number of keys (a task and an index; "chain" and an index; ...), never a prefix of another's.
+    Mixing in the key count would avoid that but change every stored scene and evaluation, so it stays."""
     words = [int(seed) & 0xFFFFFFFF] + [zlib.crc32(k.encode()) if isinstance(k, str) else int(k) for k in keys]
     return int(np.random.SeedSequence(words).generate_state(1)[0])
 

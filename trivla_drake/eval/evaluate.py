@@ -8,14 +8,13 @@ so a run with `workers` processes gives exactly the results of a serial run with
 from __future__ import annotations
 
 import math
-from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 
 from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import get_task
+from trivla_drake.tasks.suite import check_run_settings
 
 _POLICY_CACHE: dict[tuple, object] = {}
 
@@ -76,11 +75,7 @@ class EvalConfig:
     def validate(self) -> None:
         if not self.tasks and self.chains <= 0:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
-        for name in self.tasks:
-            get_task(name)
-        repeated = sorted(name for name, count in Counter(self.tasks).items() if count > 1)
-        if repeated:  # the same seeds twice would halve the standard error's variance for nothing
-            raise ValueError(f"--tasks names {repeated} more than once")
+        check_run_settings(self.tasks, self.seed, self.stacked_picks)
         if self.episodes < 0 or self.chains < 0:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
@@ -101,10 +96,8 @@ class EvalConfig:
 
             check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
         if self.stacked_picks:
-            from trivla_drake.tasks.suite import STACKED_PICK_TASKS
-
-            if not set(self.tasks) & set(STACKED_PICK_TASKS):
-                raise ValueError(f"--stacked-picks applies to {', '.join(STACKED_PICK_TASKS)}; --tasks has none of them")
+            if not self.tasks:
+                raise ValueError("--stacked-picks applies to single-task episodes (--tasks with --episodes >= 1)")
             if self.prelude:
                 raise ValueError("--stacked-picks and --prelude cannot be combined: a prelude redraws the block to "
                                  "pick up in the scene it leaves")
@@ -238,25 +231,31 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
     if config.prelude and episodes:
         report["after_prelude_task"] = success_after_prelude_task(episodes)
     if chains:
-        completed = [c["completed"] for c in chains]
-        n = len(completed)
-        mean = sum(completed) / n
-        var = sum((c - mean) ** 2 for c in completed) / (n - 1) if n > 1 else 0.0  # sample variance (ddof 1)
-        report["chain_avg_len"] = mean
-        report["chain_avg_len_stderr"] = math.sqrt(var / n)
-        report["chains"] = {
-            "count": n,
-            # CALVIN's table: the fraction of chains that completed at least k tasks, k = 1..5.
-            "completed_at_least": [sum(c >= k for c in completed) / n for k in range(1, 6)],
-            "failures": [
-                {"seed": c["seed"], "completed": c["completed"], "reason": c["reason"]} for c in chains if c["reason"]
-            ],
-            # Each chain's tasks in order, up to and including the one that failed (older reports lack it).
-            "tasks": [[s["task"] for s in c.get("subtasks", ())] for c in chains],
-        }
-        report["chains"]["by_position"] = chain_success_by_position(report["chains"]["tasks"], completed)
+        report.update(summarize_chains(chains))
     report["config"] = {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
     return report
+
+
+def summarize_chains(chains: list[dict]) -> dict:
+    """Avg. Len with its standard error and the `chains` summary of chain results (each a dict with `seed`,
+    `completed`, `reason` and `subtasks`, a list of dicts with `task`), as `evaluate --chains` and
+    `demo --chains` report them."""
+    completed = [c["completed"] for c in chains]
+    n = len(completed)
+    mean = sum(completed) / n
+    var = sum((c - mean) ** 2 for c in completed) / (n - 1) if n > 1 else 0.0  # sample variance (ddof 1)
+    summary = {
+        "count": n,
+        # CALVIN's table: the fraction of chains that completed at least k tasks, k = 1..5.
+        "completed_at_least": [sum(c >= k for c in completed) / n for k in range(1, CHAIN_LENGTH + 1)],
+        "failures": [
+            {"seed": c["seed"], "completed": c["completed"], "reason": c["reason"]} for c in chains if c["reason"]
+        ],
+        # Each chain's tasks in order, up to and including the one that failed (older reports lack it).
+        "tasks": [[s["task"] for s in c.get("subtasks", ())] for c in chains],
+    }
+    summary["by_position"] = chain_success_by_position(summary["tasks"], completed)
+    return {"chain_avg_len": mean, "chain_avg_len_stderr": math.sqrt(var / n), "chains": summary}
 
 
 def chain_success_by_position(tasks: list[list[str]], completed: list[int]) -> list[dict]:
@@ -296,6 +295,28 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
     return summarize(config, episodes, chains)
 
 
+def format_chain_markdown(report: dict) -> list[str]:
+    """The Markdown lines of a report's chains (CALVIN's table, Avg. Len, success by position); none without."""
+    if "chain_avg_len" not in report:
+        return []
+    c = report["chains"]
+    lines = [
+        "",
+        "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        f"| {c['count']} | " + " | ".join(f"{x:.2f}" for x in c["completed_at_least"])
+        + f" | {report['chain_avg_len']:.2f} ± {report['chain_avg_len_stderr']:.2f} |",
+    ]
+    if "by_position" in c:
+        lines += [
+            "",
+            "| chain position | 1 | 2 | 3 | 4 | 5 |",
+            "| --- | --- | --- | --- | --- | --- |",
+            "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in c["by_position"]) + " |",
+        ]
+    return lines
+
+
 def format_markdown(report: dict) -> str:
     """The report as a Markdown table (one row per task, then the average and chains)."""
     lines = [
@@ -307,22 +328,7 @@ def format_markdown(report: dict) -> str:
         for name, row in report["tasks"].items():
             lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['episodes']} |")
         lines.append(f"| **average** | **{report['average_success']:.3f}** | | |")
-    if "chain_avg_len" in report:
-        c = report["chains"]
-        lines += [
-            "",
-            "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |",
-            "| --- | --- | --- | --- | --- | --- | --- |",
-            f"| {c['count']} | " + " | ".join(f"{x:.2f}" for x in c["completed_at_least"])
-            + f" | {report['chain_avg_len']:.2f} ± {report['chain_avg_len_stderr']:.2f} |",
-        ]
-        if "by_position" in c:
-            lines += [
-                "",
-                "| chain position | 1 | 2 | 3 | 4 | 5 |",
-                "| --- | --- | --- | --- | --- | --- |",
-                "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in c["by_position"]) + " |",
-            ]
+    lines += format_chain_markdown(report)
     if report.get("after_prelude_task"):
         rows = report["after_prelude_task"]
         lines += ["", "| after the prelude's last task | " + " | ".join(rows) + " |",

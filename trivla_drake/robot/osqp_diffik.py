@@ -249,7 +249,12 @@ class OsqpDifferentialIK:
         elif status_val == osqp.SolverStatus.OSQP_SOLVED_INACCURATE:
             status = DiffIKStatus.SOLVED_INACCURATE
         else:
-            return self._hold(q, error)
+            # OSQP ran out of iterations (it can on badly scaled weights, and the same problem comes back next
+            # tick): the box QP in 7 variables is solved exactly by active sets instead; a hold only if that fails.
+            v = solve_box_qp(self._hessian, self._gradient, bounds[0], bounds[1], v)
+            if v is None:
+                return self._hold(q, error)
+            return DiffIKResult(q + p.dt * v, v, DiffIKStatus.SOLVED, error)
         v = self._polish(result.x, bounds)
         return DiffIKResult(q + p.dt * v, v, status, error)
 
@@ -283,6 +288,40 @@ class OsqpDifferentialIK:
     def _hold(q: np.ndarray, error: np.ndarray) -> DiffIKResult:
         """The answer of a failed tick: stay at q."""
         return DiffIKResult(q.copy(), np.zeros_like(q), DiffIKStatus.SOLVER_FAILED, error)
+
+
+def solve_box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 start: np.ndarray, max_rounds: int = 100) -> np.ndarray | None:
+    """The minimiser of 1/2 x'Hx + g'x over lower <= x <= upper (H positive definite) by a primal active-set
+    method from `start`: solve for the free variables with the others at their bounds; put any that leave the box on
+    their bound; release the bound whose multiplier pushes outwards the most; stop when the KKT conditions hold.
+    None if it has not converged within `max_rounds` (or a reduced system is not positive definite)."""
+    x = np.minimum(np.maximum(start, lower), upper)
+    at_lower, at_upper = x <= lower, x >= upper
+    for _ in range(max_rounds):
+        free = ~(at_lower | at_upper)
+        x = np.where(at_lower, lower, np.where(at_upper, upper, x))
+        if free.any():
+            fixed = ~free
+            rhs = -(gradient[free] + hessian[np.ix_(free, fixed)] @ x[fixed])
+            _, x_free, info = dposv(hessian[np.ix_(free, free)], rhs)
+            if info != 0:
+                return None
+            below, above = x_free < lower[free], x_free > upper[free]
+            if below.any() or above.any():
+                at_lower[np.flatnonzero(free)[below]] = True
+                at_upper[np.flatnonzero(free)[above]] = True
+                continue
+            x[free] = x_free
+        # The multipliers of the bounds: at a lower bound the gradient must point inwards (>= 0), at an upper one
+        # outwards-negative (<= 0). Release the worst offender, if any.
+        residual = hessian @ x + gradient
+        wrong = np.where(at_lower, -residual, 0.0) + np.where(at_upper, residual, 0.0)
+        worst = int(np.argmax(wrong))
+        if wrong[worst] <= 1e-9 * max(1.0, float(np.abs(residual).max())):
+            return x
+        at_lower[worst] = at_upper[worst] = False
+    return None
 
 
 def _check_target_pose(target_pose: np.ndarray) -> np.ndarray:

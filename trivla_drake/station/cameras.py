@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams, SceneGraph
 from pydrake.math import RollPitchYaw
@@ -44,18 +47,46 @@ class ImageSampleAndHold(LeafSystem):
         state.get_mutable_abstract_state(self._state_index).set_value(self._input.Eval(context))
 
 
+def check_camera_config(name: str, config: CameraConfig) -> None:
+    """ValueError naming `cameras.{name}.<field>` for a value the station cannot honour: a frame rate that is not a
+    positive finite number, a size below one pixel, or a CameraConfig feature it does not build (depth output,
+    a capture offset or output delay, another renderer class, a background other than the VTK renderer's clear
+    colour), which would otherwise be ignored without a word."""
+    if not (math.isfinite(config.fps) and config.fps > 0):
+        raise ValueError(f"cameras.{name}.fps must be a positive, finite number of frames a second, got {config.fps}")
+    for field in ("width", "height"):
+        if getattr(config, field) < 1:
+            raise ValueError(f"cameras.{name}.{field} must be at least 1 pixel, got {getattr(config, field)}")
+    unsupported = {
+        "depth": (config.depth, "depth images are not rendered (RGB only)"),
+        "capture_offset": (config.capture_offset != 0.0, "the held image samples at t = 0, 1/fps, ..."),
+        "output_delay": (config.output_delay != 0.0, "images are output when sampled"),
+        "renderer_class": (config.renderer_class not in ("", "RenderEngineVtk"), "the renderer is RenderEngineVtk"),
+    }
+    for field, (given, why) in unsupported.items():
+        if given:
+            raise ValueError(f"cameras.{name}.{field}: not supported ({why}); leave it out")
+    clear = np.asarray(RenderEngineVtkParams().default_clear_color)
+    background = np.array([config.background.r(), config.background.g(), config.background.b()])
+    if np.abs(background - clear).max() > 1.0 / 255.0 or config.background.a() != 1.0:
+        raise ValueError(f"cameras.{name}.background: the renderer clears to {np.round(clear, 3).tolist()} (opaque) "
+                         f"for every camera; got {config.background}: leave it out or give that colour")
+
+
 def add_rgb_camera(
     builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, name: str, config: CameraConfig
 ) -> tuple[OutputPort, OutputPort]:
     """Add one camera; returns its ImageRgba8U outputs (held, now): the image sampled every 1/fps
     seconds of sim time and held, and the sensor's own output, rendered at the current state whenever
     it is evaluated (what a periodic consumer such as the policy reads at its tick: never stale)."""
-    if config.fps <= 0:
-        raise ValueError(f"cameras.{name}.fps must be positive, got {config.fps}")
+    check_camera_config(name, config)
     renderer = config.renderer_name
     if not scene_graph.HasRenderer(renderer):
         scene_graph.AddRenderer(renderer, MakeRenderEngineVtk(RenderEngineVtkParams()))
-    color_camera, depth_camera = config.MakeCameras()
+    try:
+        color_camera, depth_camera = config.MakeCameras()
+    except Exception as error:  # Drake's message names the value, not the camera
+        raise ValueError(f"cameras.{name}: {error}") from error
     frame = _frame_named(plant, config.X_PB.base_frame, name)
     # X_PB is given in the named frame; RgbdSensor wants the pose in that frame's body.
     X_BodyB = frame.GetFixedPoseInBodyFrame() @ config.X_PB.GetDeterministicValue()

@@ -51,6 +51,12 @@ def add_panda_driver(
             f"panda_driver.arm_kp and panda_driver.arm_kd need {N_ARM} values each, "
             f"got {len(config.arm_kp)} and {len(config.arm_kd)}"
         )
+    for field in ("arm_kp", "arm_kd", "finger_kp", "finger_kd"):
+        values = getattr(config, field)
+        for i, value in enumerate(values if isinstance(values, list) else [values]):
+            if not (np.isfinite(value) and value >= 0):  # Drake would abort the process on a negative gain
+                where = f"panda_driver.{field}" + (f"[{i}]" if isinstance(values, list) else "")
+                raise ValueError(f"{where} must be a finite gain >= 0, got {value}")
     gains = dict(zip(ARM_JOINTS, zip(config.arm_kp, config.arm_kd)))
     gains.update({name: (config.finger_kp, config.finger_kd) for name in FINGER_JOINTS})
     for name, (kp, kd) in gains.items():

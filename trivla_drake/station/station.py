@@ -19,7 +19,11 @@ Exported ports (`{instance}.{port}`, as in manipulation's MakeHardwareStation):
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from pydrake.geometry import Meshcat
+from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirectives
 from pydrake.multibody.plant import AddMultibodyPlant
 from pydrake.multibody.tree import PdControllerGains
@@ -63,8 +67,25 @@ def _add_models(scenario: Scenario, plant, parser: Parser) -> None:
         raise ScenarioError("scenario directives: no model named 'panda' (the station drives it)")
 
 
+def _check_base_at_origin(plant, panda) -> None:
+    """ScenarioError unless `panda_link0` is welded to the world at the origin: the diff-IK, the actions and the
+    policy's tool-centre point are all computed in the Panda's base frame, taken to be the world's."""
+    base = plant.GetBodyByName("panda_link0", panda)
+    if base.index() not in [body.index() for body in plant.GetBodiesWeldedTo(plant.world_body())]:
+        raise ScenarioError("scenario directives: panda::panda_link0 must be welded to the world (add_weld)")
+    X_WB = plant.EvalBodyPoseInWorld(plant.CreateDefaultContext(), base)
+    if not X_WB.IsNearlyEqualTo(RigidTransform(), 1e-9):
+        raise ScenarioError(
+            "scenario directives: panda::panda_link0 must be welded at the world origin, unrotated (the diff-IK, the "
+            f"actions and the policy's hand poses are in the Panda's base frame, taken as the world's); it is at "
+            f"{np.round(X_WB.translation(), 4).tolist()} m: move the other models instead")
+
+
 def make_station(scenario: Scenario, *, meshcat: Meshcat | None = None) -> Diagram:
     """Build the station Diagram for `scenario`; with `meshcat`, it is also drawn there."""
+    time_step = scenario.plant_config.time_step
+    if not (math.isfinite(time_step) and time_step >= 0):  # Drake would abort the process
+        raise ScenarioError(f"plant_config.time_step must be a finite number of seconds >= 0, got {time_step}")
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(scenario.plant_config, builder)
     parser = make_parser(plant)
@@ -72,6 +93,7 @@ def make_station(scenario: Scenario, *, meshcat: Meshcat | None = None) -> Diagr
     plant.Finalize()
 
     panda = plant.GetModelInstanceByName("panda")
+    _check_base_at_origin(plant, panda)
     controller_plant = make_panda_only_plant(str(drake_panda_urdf()), parser)
     arm_input, gripper_input = add_panda_driver(
         builder, plant, panda, controller_plant, scenario.panda_driver

@@ -89,6 +89,8 @@ class ActionChunkExecutor(LeafSystem):
         super().__init__()
         if ensemble_decay is not None and not (math.isfinite(ensemble_decay) and ensemble_decay >= 0):
             raise ValueError(f"ensemble_decay must be a finite number >= 0 or None, got {ensemble_decay}")
+        if isinstance(keep_chunks, bool) or not isinstance(keep_chunks, (int, np.integer)) or keep_chunks < 1:
+            raise ValueError(f"keep_chunks must be an integer >= 1 (chunks kept for ensembling), got {keep_chunks!r}")
         if not 0.0 <= offset_s < space.dt:
             raise ValueError(f"offset_s must be in [0, dt = {space.dt:g}), got {offset_s}")
         self._space = space
@@ -104,9 +106,12 @@ class ActionChunkExecutor(LeafSystem):
         self._history_index = self.DeclareAbstractState(AbstractValue.Make(ChunkHistory()))
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialise)
         self.DeclarePeriodicUnrestrictedUpdateEvent(space.dt, offset_s, self._tick)
-        self.DeclareAbstractOutputPort("ee_target", lambda: AbstractValue.Make(RigidTransform()), self._calc_target)
-        self.DeclareVectorOutputPort("gripper_target", 1, self._calc_width)
-        self.DeclareVectorOutputPort("action", ACTION_DIM, self._calc_action)
+        # The outputs read the discrete state alone: no direct feedthrough from any input.
+        state_only = {self.xd_ticket()}
+        self.DeclareAbstractOutputPort("ee_target", lambda: AbstractValue.Make(RigidTransform()), self._calc_target,
+                                       prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("gripper_target", 1, self._calc_width, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("action", ACTION_DIM, self._calc_action, prerequisites_of_calc=state_only)
 
     @property
     def action_space(self) -> ActionSpace:

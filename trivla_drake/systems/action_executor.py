@@ -104,11 +104,14 @@ class ActionExecutor(LeafSystem):
         self._state_index = self.DeclareDiscreteState(13)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialise)
         self.DeclarePeriodicDiscreteUpdateEvent(space.dt, 0.0, self._step)
+        # The outputs read the discrete state alone: no direct feedthrough from any input.
+        state_only = {self.xd_ticket()}
         self.DeclareAbstractOutputPort(
-            "ee_target", lambda: AbstractValue.Make(RigidTransform()), self._calc_target
+            "ee_target", lambda: AbstractValue.Make(RigidTransform()), self._calc_target,
+            prerequisites_of_calc=state_only,
         )
-        self.DeclareVectorOutputPort("gripper_width", 1, self._calc_width)
-        self.DeclareVectorOutputPort("commanded_pose", 12, self._calc_pose)
+        self.DeclareVectorOutputPort("gripper_width", 1, self._calc_width, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("commanded_pose", 12, self._calc_pose, prerequisites_of_calc=state_only)
 
     @property
     def action_space(self) -> ActionSpace:

@@ -58,8 +58,10 @@ class DifferentialIKSystem(LeafSystem):
         self._state_index = self.DeclareDiscreteState(N_ARM + 1)
         self.DeclarePeriodicDiscreteUpdateEvent(self._params.dt, 0.0, self._tick)
         self.DeclareInitializationDiscreteUpdateEvent(self._start_from_measured)
-        self.DeclareVectorOutputPort("position_setpoint", N_ARM, self._calc_setpoint)
-        self.DeclareVectorOutputPort("status", 1, self._calc_status)
+        # The outputs read the discrete state alone: no direct feedthrough from any input.
+        state_only = {self.xd_ticket()}
+        self.DeclareVectorOutputPort("position_setpoint", N_ARM, self._calc_setpoint, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("status", 1, self._calc_status, prerequisites_of_calc=state_only)
 
     def _start_from_measured(self, context, discrete_state):
         q = self._state_port.Eval(context)[:N_ARM]
@@ -72,13 +74,21 @@ class DifferentialIKSystem(LeafSystem):
         if np.max(np.abs(q_cmd - q_measured)) > RESYNC_THRESHOLD:
             q_cmd = q_measured
         X_WTarget = self._target_port.Eval(context).GetAsMatrix4()
+        # Problems are logged when they start (the status output says so every tick), not on every 10 ms tick.
+        previous = stored[N_ARM]
         try:
             result = self._solver.solve(q_cmd, self._X_BaseW @ X_WTarget)
         except ValueError as error:
-            _log.error("DifferentialIKSystem input port 'ee_target' rejected: %s; holding position", error)
+            if previous != REJECTED_TARGET:
+                _log.error("DifferentialIKSystem input port 'ee_target' rejected at t = %.3f s: %s; holding position",
+                           context.get_time(), error)
             next_state = np.append(q_cmd, REJECTED_TARGET)
         else:
-            next_state = np.append(result.q_next, STATUS_CODES[result.status])
+            status = STATUS_CODES[result.status]
+            if status == STATUS_CODES[DiffIKStatus.SOLVER_FAILED] and previous != status:
+                _log.warning("DifferentialIKSystem: the QP failed at t = %.3f s; holding position until it solves",
+                             context.get_time())
+            next_state = np.append(result.q_next, status)
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(next_state)
 
     def _calc_setpoint(self, context, output: BasicVector):

@@ -282,6 +282,8 @@ class UnstackBlock(Task):
     def plan(self, params, scene):
         top, base = params
         spot = _free_spot(scene, top, scene.block_position(base))
+        if spot is None:  # a plan rebuilt mid-episode, with the table's free places taken since the start
+            raise ValueError(f"unstack_block: no free place on the table to set the {top} block down")
         plan = motions.grasp(scene, top, lift_to=0.13)
         yaw = motions.grasp_yaw(scene, top, at=spot)
         return plan + motions.place(spot, yaw, release_z=BLOCK_HALF + 0.008, approach_z=0.13)
@@ -547,6 +549,24 @@ def parse_task_list(text: str | None) -> list[str]:
 # Tasks that start with a grasp of their first block, which chains may ask to pick off the top of a stack.
 STACKED_PICK_TASKS = ("lift_block", "place_in_bowl", "stack_block")
 
+# Seeds are 32-bit words (eval/episode.py's derive_seed): a larger one would wrap onto another's scenes.
+MAX_SEED = 2**32 - 1
+
+
+def check_run_settings(tasks: list[str], seed: int, stacked_picks: bool | float) -> None:
+    """What `collect` and `evaluate` both refuse, naming the flag: an unknown task, a task named twice (the same
+    seeds twice), a seed outside 0..MAX_SEED, or --stacked-picks without any task it applies to."""
+    for name in tasks:
+        get_task(name)
+    repeated = sorted(name for name in set(tasks) if tasks.count(name) > 1)
+    if repeated:
+        raise ValueError(f"--tasks names {repeated} more than once")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"--seed must be an integer from 0 to {MAX_SEED} (a 32-bit seed; a larger one would wrap "
+                         f"onto another's scenes), got {seed!r}")
+    if stacked_picks and tasks and not set(tasks) & set(STACKED_PICK_TASKS):
+        raise ValueError(f"--stacked-picks applies to {', '.join(STACKED_PICK_TASKS)}; --tasks has none of them")
+
 
 def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraphrase: bool = False,
                          max_tries: int = 200, stacked_pick: bool = False):
@@ -575,6 +595,8 @@ def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraph
 __all__ = [
     "BLOCK_SIZE",
     "STACKED_PICK_TASKS",
+    "MAX_SEED",
+    "check_run_settings",
     "ON_TABLE_MAX_Z",
     "TASKS",
     "TASK_NAMES",

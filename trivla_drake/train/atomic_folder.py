@@ -1,5 +1,6 @@
-"""A folder written atomically: filled under a temporary name, renamed into place only when complete; and a cached
-folder keyed by its settings (its meta.json), made once that way and never overwritten by other settings."""
+"""A folder written atomically and durably: filled under a temporary name, its files flushed to disk, renamed into
+place only when complete (a folder under its final name is always whole, even after a power loss); and a cached folder
+keyed by its settings (its meta.json), made once that way and never overwritten by other settings."""
 
 from __future__ import annotations
 
@@ -12,18 +13,22 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from trivla_drake.data.durable import fsync_file
+
 
 @contextmanager
 def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
-    """Yields a new temporary sibling of `folder` to fill. When the block ends without an error it replaces
-    `folder`; on an error it is removed and `folder` is left as it was."""
+    """Yields a new, empty temporary sibling of `folder` to fill. When the block ends without an error its files are
+    flushed to disk and it replaces `folder`; on an error it is removed and `folder` is left as it was."""
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = folder.with_name(f".tmp-{folder.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     tmp.mkdir()
     try:
         yield tmp
+        _fsync_tree(tmp)
         replace_folder(tmp, folder)
+        _fsync_directory(folder.parent)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -39,6 +44,23 @@ def replace_folder(new: Path, target: Path) -> None:
     os.rename(target, old)
     os.rename(new, target)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _fsync_directory(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(directory: Path) -> None:
+    """Flushes every file under `directory`, then the folders themselves (so the names are on disk too)."""
+    for path in directory.rglob("*"):
+        if path.is_file() and not path.is_symlink():
+            fsync_file(path)
+    for path in [*(p for p in directory.rglob("*") if p.is_dir() and not p.is_symlink()), directory]:
+        _fsync_directory(path)
 
 
 def ensure_cached_folder(folder: str | os.PathLike, settings: dict[str, Any], make: Callable[[], Path], *,

@@ -16,14 +16,13 @@ import json
 import os
 import re
 import shutil
-import uuid
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from trivla_drake.nn.checkpoint import save_checkpoint
-from trivla_drake.train.atomic_folder import replace_folder
+from trivla_drake.train.atomic_folder import atomic_folder
 from trivla_drake.train.config import TrainConfig
 
 CHECKPOINTS_DIR = "checkpoints"
@@ -39,42 +38,13 @@ def step_dir_name(step: int) -> str:
     return f"step-{step:08d}"
 
 
-def _fsync_tree(directory: Path) -> None:
-    for path in directory.rglob("*"):
-        if path.is_file():
-            with open(path, "rb") as f:
-                os.fsync(f.fileno())
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _publish(tmp: Path, target: Path) -> None:
-    """Renames the complete folder `tmp` to `target`, replacing an older `target` if there is one."""
-    _fsync_tree(tmp)
-    replace_folder(tmp, target)
-    fd = os.open(target.parent, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_folder_atomically(target: str | os.PathLike, fill) -> Path:
-    """Calls fill(tmp) on a fresh temporary folder next to `target`, then publishes it as `target`;
-    the temporary folder is removed if `fill` fails, and an existing `target` stays intact."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
+def write_folder_atomically(target: str | os.PathLike, fill) -> Path:
+    """Calls fill(tmp) on a fresh, empty temporary folder next to `target`, then puts it in place as `target`
+    (`atomic_folder`: flushed to disk, renamed); the temporary folder is removed if `fill` fails, and an existing
+    `target` stays intact."""
+    with atomic_folder(target) as tmp:
         fill(tmp)
-        _publish(tmp, target)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return target
+    return Path(target)
 
 
 def write_checkpoint(
@@ -92,12 +62,12 @@ def write_checkpoint(
         (tmp / STEP_FILE).write_text(json.dumps({"step": int(train_state["step"])}))
         config.save(str(tmp / TRAIN_CONFIG_FILE))
 
-    return _write_folder_atomically(target, fill)
+    return write_folder_atomically(target, fill)
 
 
 def copy_checkpoint(source: str | os.PathLike, target: str | os.PathLike) -> Path:
     """Copies a complete checkpoint folder to `target` atomically."""
-    return _write_folder_atomically(target, lambda tmp: shutil.copytree(source, tmp))
+    return write_folder_atomically(target, lambda tmp: shutil.copytree(source, tmp, dirs_exist_ok=True))
 
 
 def export_checkpoint(
@@ -121,7 +91,7 @@ def export_checkpoint(
         load_trained_weights(model, source)
     if drop_unused_llm_layers and model.vision_language is not None:
         model.vision_language.drop_layers_above_readout()
-    return _write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
+    return write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
 
 
 def load_trained_weights(model: torch.nn.Module, directory: str | os.PathLike) -> None:

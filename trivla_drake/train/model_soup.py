@@ -66,7 +66,7 @@ def soup_checkpoints(
     """Writes the soup of checkpoints `sources` (same config.json, e.g. runs' final/ folders) to `target`
     atomically, as `export_checkpoint` writes one model."""
     from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
-    from trivla_drake.train.checkpoints import _write_folder_atomically
+    from trivla_drake.train.checkpoints import write_folder_atomically
 
     paths = [Path(source) for source in sources]
     if len(paths) < 2:
@@ -88,4 +88,4 @@ def soup_checkpoints(
     model.load_state_dict(averaged)
     if drop_unused_llm_layers and model.vision_language is not None:
         model.vision_language.drop_layers_above_readout()
-    return _write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
+    return write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
