@@ -40,8 +40,12 @@ def main():
     wall = time.perf_counter() - start
     context = policy.GetMyContextFromRoot(simulator.get_context())
     print(f"simulated {args.seconds:.1f} s in {wall:.1f} s (real-time factor {args.seconds / wall:.2f})")
-    print("end-effector target:", policy.GetOutputPort("ee_target").Eval(context).translation().round(3))
-    print("latest action chunk (10 x 7):\n", policy.GetOutputPort("action_chunk").Eval(context).round(3))
+    print("end-effector target [m]:", policy.GetOutputPort("ee_target").Eval(context).translation().round(3))
+    # Each row one control step (1/36 s): the hand's translation [m] and rotation [rad] in the world frame, then
+    # the gripper (+1 open, -1 closed).
+    chunk = policy.GetOutputPort("action_chunk").Eval(context)
+    print(f"latest action chunk ({chunk.shape[0]} steps x 7: dx dy dz [m], drx dry drz [rad], gripper):")
+    print(chunk.round(3))
 
 
 if __name__ == "__main__":

@@ -4,6 +4,11 @@ The Panda follows a scripted path; at `--at` seconds System 3 predicts the comin
 current static and wrist frames in ONE UNet pass, and the simulator renders what really happens.
 Rows: real static, predicted static, real wrist, predicted wrist. Columns: the clip's frames.
 
+Pictures need a trained video autoencoder: the `paper` preset loads SVD's (`svd_path` / `vae_path`). The `cpu` preset
+(the shipped checkpoint) keeps its autoencoder at its random initialisation, as nothing here trains it: its UNet
+learns and predicts in that random latent space, which serves System 1 as features, but the decoded rows show colour
+noise, not scenes. The script says so when it runs.
+
     python examples/system3_predictions.py --out system3_predictions.png
 """
 
@@ -48,6 +53,11 @@ def main():
             real[view].append(sensor.color_image_output_port().Eval(context).data[:, :, :3].copy())
     size = 112
     rows = []
+    dynamics_config = model.config.dynamics
+    if not (dynamics_config.vae_path or dynamics_config.svd_path):
+        print("note: this model's video autoencoder was never trained (no svd_path / vae_path, as in the cpu "
+              "preset): the predicted rows decode its latents into colour noise; only the paper preset's SVD "
+              "autoencoder decodes pictures")
     for view in views:
         predicted = model.predict_video(real[view][0], args.instruction, seed=args.seed)
         rows.append(np.hstack([cv2.resize(f, (size, size), interpolation=cv2.INTER_AREA) for f in real[view]]))

@@ -111,12 +111,12 @@ def test_parser_maps_every_flag_to_the_config():
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("warmup_steps", -1, "warmup_steps must be >= 0"),
-    ("grad_clip", -0.5, "grad_clip must be >= 0"),
+    ("warmup_steps", -1, "warmup_steps \\(--warmup-steps\\) must be >= 0"),
+    ("grad_clip", -0.5, "grad_clip \\(--grad-clip\\) must be >= 0"),
     ("weight_decay", float("nan"), "weight_decay must be >= 0"),
-    ("beta2", 1.0, r"beta2 must be in \[0, 1\)"),
+    ("beta2", 1.0, r"beta2 \(--beta2\) must be in \[0, 1\)"),
     ("beta1", -0.1, r"beta1 must be in \[0, 1\)"),
-    ("min_lr_ratio", 1.5, r"min_lr_ratio must be in \[0, 1\]"),
+    ("min_lr_ratio", 1.5, r"min_lr_ratio \(--min-lr-ratio\) must be in \[0, 1\]"),
 ])
 def test_optimizer_settings_out_of_range_are_named(field, value, message, tmp_path):
     from trivla_drake.train.config import TrainConfig

@@ -28,6 +28,8 @@ def _print_result(result: dict, as_json: bool, title: str) -> None:
 
 
 def _cmd_sim(args) -> int:
+    if not args.seconds > 0:
+        raise ValueError(f"--seconds must be positive, got {args.seconds}")
     from trivla_drake.eval.scripted_run import run_scripted
     from trivla_drake.station.meshcat_setup import make_meshcat
     from trivla_drake.station.scenario import load_scenario
@@ -58,10 +60,12 @@ def _cmd_bench(args) -> int:
     result: dict = {}
     if args.precision != "float32" and not args.model:
         raise ValueError("--precision goes with --model (the station benchmarks run the model in float32)")
+    if args.preset is not None and args.checkpoint is not None:
+        raise ValueError("--preset (an UNTRAINED model of that preset) and --checkpoint (a trained one): give one")
     if args.model:
         from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
 
-        model_result = benchmark_model(preset=args.preset, precision=args.precision)
+        model_result = benchmark_model(preset=args.preset or "cpu", precision=args.precision)
         if args.json:
             print(json.dumps(model_result))
         else:
@@ -77,7 +81,7 @@ def _cmd_bench(args) -> int:
     result.update(benchmark_diffik(num_problems=args.diffik_problems))
     result.update(benchmark_station(load_scenario(args.scenario), seconds=args.seconds))
     _set_torch_threads(args.threads)
-    model = load_model(args.checkpoint)
+    model = load_model(args.checkpoint, preset=args.preset)
     result.update(benchmark_closed_loop(load_scenario(args.scenario), model, seconds=args.seconds))
     _print_result(result, args.json, "benchmark")
     return 0
@@ -116,16 +120,19 @@ def _cmd_demo(args) -> int:
         raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
     latency = LatencyModel.parse(args.latency)
     if args.policy == "oracle":
-        if (args.meshcat or args.record or args.instruction or args.checkpoint or args.noise_scale is not None
-                or args.execute_steps is not None or args.ensemble_decay is not None):
-            raise ValueError("--meshcat, --record, --instruction, --checkpoint, --noise-scale, --execute-steps and "
-                             "--ensemble-decay go with --policy trivla")
+        if (args.meshcat or args.record or args.instruction or args.checkpoint or args.preset or args.noise_scale is not None
+                or args.execute_steps is not None or args.ensemble_decay is not None or latency.mode != "zero"):
+            raise ValueError("--meshcat, --record, --instruction, --checkpoint, --preset, --noise-scale, --execute-steps, "
+                             "--ensemble-decay and --latency go with --policy trivla (the oracle runs in the "
+                             "evaluation harness, without latency)")
         report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed, progress=not args.no_progress)
     else:
         from trivla_drake.eval.model_loading import load_model
 
         _set_torch_threads(args.threads)
-        model = load_model(args.checkpoint)
+        if args.preset is not None and args.checkpoint is not None:
+            raise ValueError("--preset (an UNTRAINED model of that preset) and --checkpoint (a trained one): give one")
+        model = load_model(args.checkpoint, preset=args.preset)
         if args.noise_scale is not None:
             model.set_initial_noise_scale(args.noise_scale)
         _check_chunk_execution(args, model)
@@ -284,6 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="closed-loop episodes: TriVLA as Drake systems, or the oracle")
     demo.add_argument("--policy", choices=("trivla", "oracle"), default="trivla")
     demo.add_argument("--checkpoint", help="TriVLA checkpoint (default: models/trivla_cpu)")
+    demo.add_argument("--preset", choices=("tiny", "cpu"), default=None,
+                      help="an UNTRAINED model of this preset instead (for wiring and timing, not success)")
     demo.add_argument("--task", default=None, help=f"task name (default {DEMO_TASK}; see `trivla-drake evaluate --help`)")
     demo.add_argument("--instruction", help="say this instead of the task's own instruction")
     demo.add_argument("--episodes", type=int, default=None, help="episodes (default 1)")
@@ -370,7 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
-    bench.add_argument("--preset", default="cpu", help="model preset for --model (tiny, cpu, paper)")
+    bench.add_argument("--preset", default=None,
+                       help="model preset (tiny, cpu, paper): with --model, the preset timed (default cpu); without, "
+                            "an UNTRAINED model of it for the closed-loop figure instead of the shipped checkpoint")
     bench.add_argument("--precision", default="float32", choices=("float32", "bfloat16", "float16"),
                        help="--model: autocast dtype of the timed calls (weights stay float32; default float32)")
     bench.add_argument("--seconds", type=float, default=4.0, help="simulated time per station run [s]")

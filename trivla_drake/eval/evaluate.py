@@ -73,11 +73,11 @@ class EvalConfig:
     stacked_picks: bool = False
 
     def validate(self) -> None:
+        if self.episodes < 0 or self.chains < 0:
+            raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if not self.tasks and self.chains <= 0:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
         check_run_settings(self.tasks, self.seed, self.stacked_picks)
-        if self.episodes < 0 or self.chains < 0:
-            raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
         if isinstance(self.prelude, bool) or not isinstance(self.prelude, int) or not 0 <= self.prelude < CHAIN_LENGTH:
@@ -324,7 +324,7 @@ def format_markdown(report: dict) -> str:
         + (", held-out paraphrases" if report["paraphrases"] else ""),
     ]
     if report["tasks"]:
-        lines += ["", "| task | success | stderr | episodes |", "| --- | --- | --- | --- |"]
+        lines += ["", "| task | success | std. error | episodes |", "| --- | --- | --- | --- |"]
         for name, row in report["tasks"].items():
             lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['episodes']} |")
         lines.append(f"| **average** | **{report['average_success']:.3f}** | | |")

@@ -77,7 +77,7 @@ class TablesConfig:
             raise ValueError("checkpoints needs a 'full' entry (Systems 1+2+3 on all demonstrations)")
         for role, path in self.checkpoints.items():
             if not (Path(path) / "config.json").exists():
-                raise ValueError(f"checkpoints['{role}'] = {path} is not a checkpoint directory (no config.json)")
+                raise ValueError(f"--{role.replace('_', '-')} {path} is not a checkpoint directory (no config.json)")
         if not self.seeds or self.episodes < 1:
             raise ValueError("seeds must be non-empty and episodes >= 1")
         # TriVLA's inference settings get `evaluate`'s checks (the chunk length is checked when each

@@ -91,11 +91,26 @@ def save_checkpoint(model: TriVLA, directory: str, *, weights_dtype: str = "floa
         json.dump(meta, f, indent=2)
 
 
+def _not_a_checkpoint(directory: str) -> str:
+    """Why `directory`, which has no config.json, is not a checkpoint, and what to give instead."""
+    if not os.path.exists(directory):
+        return f"checkpoint {directory!r} does not exist"
+    if os.path.isfile(directory):
+        parent = os.path.dirname(directory) or "."
+        return f"checkpoint {directory!r} is a file: give the folder holding {CONFIG_FILE} and {WEIGHTS_FILE} ({parent!r}?)"
+    if os.path.isfile(os.path.join(directory, "meta", "info.json")):
+        return f"{directory!r} is a LeRobot dataset, not a checkpoint (a checkpoint is e.g. a training run's OUT/final)"
+    if os.path.isdir(os.path.join(directory, "final")) or os.path.isdir(os.path.join(directory, "checkpoints")):
+        return (f"{directory!r} is a training run's folder: give its checkpoint, "
+                f"{os.path.join(directory, 'final')!r} or one under {os.path.join(directory, 'checkpoints')!r}")
+    return f"no {CONFIG_FILE} in checkpoint directory {directory!r}"
+
+
 def read_checkpoint_config(directory: str) -> dict[str, Any]:
     """The parsed config.json of a checkpoint; ValueError if it is not a TriVLA checkpoint config."""
     path = os.path.join(directory, CONFIG_FILE)
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"no {CONFIG_FILE} in checkpoint directory {directory!r}")
+        raise FileNotFoundError(_not_a_checkpoint(directory))
     try:
         with open(path) as f:
             meta = json.load(f)

@@ -8,6 +8,7 @@ not yet visible), the next periodic tick does not start another one, as on a rea
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -36,9 +37,12 @@ class LatencyModel:
         if text in ("zero", "measured"):
             return LatencyModel(text)
         try:
-            return LatencyModel("fixed", float(text))
+            seconds = float(text)
         except ValueError:
-            raise ValueError(f"--latency must be 'zero', 'measured' or seconds, got {text!r}") from None
+            seconds = float("nan")
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"--latency must be 'zero', 'measured' or a finite number of seconds >= 0, got {text!r}")
+        return LatencyModel("fixed", seconds)
 
     def delay(self, wall_seconds: float) -> float:
         """Simulated delay [s] for an inference that took `wall_seconds` of wall time."""

@@ -63,6 +63,12 @@ def flag_of(field_name: str) -> str | None:
     return FLAGS_NAMED_OTHERWISE.get(field_name, "--" + field_name.replace("_", "-"))
 
 
+def named(field_name: str) -> str:
+    """A field as errors name it: `lr (--lr)`, or the bare name where no flag sets it."""
+    flag = flag_of(field_name)
+    return f"{field_name} ({flag})" if flag else field_name
+
+
 def default_cache_dir() -> str:
     """$XDG_CACHE_HOME/trivla_drake/train (default ~/.cache/trivla_drake/train)."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -276,7 +282,7 @@ class TrainConfig:
     def validate(self) -> None:
         """Raises ValueError naming the field when a value is out of range (call on `resolved()`)."""
         if self.stage not in STAGES:
-            raise ValueError(f"stage must be one of {', '.join(STAGES)}; got {self.stage!r}")
+            raise ValueError(f"{named('stage')} must be one of {', '.join(STAGES)}; got {self.stage!r}")
         if not self.out:
             raise ValueError("out (--out) is required")
         if self.stage in ("video", "policy") and not self.data:
@@ -295,11 +301,11 @@ class TrainConfig:
                     "feature_batch_size", "vqa_scenes", "vqa_questions_per_scene", "log_every")
         for name in positive:
             if getattr(self, name) is None or getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
+                raise ValueError(f"{named(name)} must be >= 1; got {getattr(self, name)}")
         if self.lr is None or not self.lr > 0:
-            raise ValueError(f"lr must be > 0; got {self.lr}")
+            raise ValueError(f"{named('lr')} must be > 0; got {self.lr}")
         if not 0 < self.fraction <= 1:
-            raise ValueError(f"fraction must be in (0, 1]; got {self.fraction}")
+            raise ValueError(f"{named('fraction')} must be in (0, 1]; got {self.fraction}")
         if isinstance(self.gripper_event_weight, bool) or not isinstance(self.gripper_event_weight, int) \
                 or self.gripper_event_weight < 1:
             raise ValueError(f"gripper_event_weight (--gripper-event-weight) must be an integer >= 1; "
@@ -313,21 +319,21 @@ class TrainConfig:
         if self.gripper_event_weight == 1 and self.gripper_event_window_s != 1.0:
             raise ValueError("gripper_event_window_s (--gripper-event-window) needs --gripper-event-weight above 1")
         if self.vqa_eval_questions < 0:
-            raise ValueError(f"vqa_eval_questions must be >= 0; got {self.vqa_eval_questions}")
+            raise ValueError(f"{named('vqa_eval_questions')} must be >= 0; got {self.vqa_eval_questions}")
         if self.workers < 0:
-            raise ValueError(f"workers must be >= 0; got {self.workers}")
+            raise ValueError(f"{named('workers')} must be >= 0; got {self.workers}")
         for name in ("warmup_steps", "weight_decay", "grad_clip"):
             if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be >= 0; got {getattr(self, name)}")
+                raise ValueError(f"{named(name)} must be >= 0; got {getattr(self, name)}")
         for name in ("beta1", "beta2"):
             if not 0 <= getattr(self, name) < 1:
-                raise ValueError(f"{name} must be in [0, 1); got {getattr(self, name)}")
+                raise ValueError(f"{named(name)} must be in [0, 1); got {getattr(self, name)}")
         if not 0 <= self.ema_decay < 1:
-            raise ValueError(f"ema_decay must be in [0, 1); got {self.ema_decay}")
+            raise ValueError(f"{named('ema_decay')} must be in [0, 1); got {self.ema_decay}")
         if not 0 <= self.min_lr_ratio <= 1:
-            raise ValueError(f"min_lr_ratio must be in [0, 1]; got {self.min_lr_ratio}")
+            raise ValueError(f"{named('min_lr_ratio')} must be in [0, 1]; got {self.min_lr_ratio}")
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):
-            raise ValueError(f"feature_dtype must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
+            raise ValueError(f"{named('feature_dtype')} must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
         check_vlm_loss_weighting(self.vlm_loss_weighting)
         if self.vl_position_embedding and self.stage != "policy":
             raise ValueError("vl_position_embedding (--vl-position-embedding) is part of System 1: set it on the "
@@ -336,9 +342,9 @@ class TrainConfig:
             raise ValueError("vl_position_embedding (--vl-position-embedding) embeds System 2's token positions: "
                              "it needs System 2 (drop --no-system2)")
         if not (math.isfinite(self.grounding_weight) and self.grounding_weight >= 0):
-            raise ValueError(f"grounding_weight must be a finite number >= 0; got {self.grounding_weight}")
+            raise ValueError(f"{named('grounding_weight')} must be a finite number >= 0; got {self.grounding_weight}")
         if not (math.isfinite(self.grounding_lr_scale) and self.grounding_lr_scale > 0):
-            raise ValueError(f"grounding_lr_scale must be a finite number > 0; got {self.grounding_lr_scale}")
+            raise ValueError(f"{named('grounding_lr_scale')} must be a finite number > 0; got {self.grounding_lr_scale}")
         if self.grounding_weight and self.stage != "policy":
             raise ValueError("grounding_weight (--grounding-weight) weighs a loss of System 1: set it on the policy "
                              f"stage, not the {self.stage} stage")
@@ -346,7 +352,7 @@ class TrainConfig:
             raise ValueError("grounding_weight (--grounding-weight) grounds the instruction in System 2's tokens: "
                              "it needs System 2 (drop --no-system2)")
         if self.grounding_phase not in GROUNDING_PHASES:
-            raise ValueError(f"grounding_phase must be one of {', '.join(GROUNDING_PHASES)}; got {self.grounding_phase!r}")
+            raise ValueError(f"{named('grounding_phase')} must be one of {', '.join(GROUNDING_PHASES)}; got {self.grounding_phase!r}")
         if self.grounding_phase != "joint" and not self.grounding_weight > 0:
             raise ValueError(f"grounding_phase (--grounding-phase) {self.grounding_phase} trains with System 1's "
                              "instruction grounding: it needs grounding_weight (--grounding-weight) > 0")
@@ -419,9 +425,9 @@ class TrainConfig:
                                  "--no-tcp-features)")
             check_calibration(self.grounding_anchor_wrist_camera, "grounding_anchor_wrist_camera")
         if not self.dense_weight >= 0:
-            raise ValueError(f"dense_weight must be >= 0; got {self.dense_weight}")
+            raise ValueError(f"{named('dense_weight')} must be >= 0; got {self.dense_weight}")
         if self.dense_subcells is not None and self.dense_subcells < 1:
-            raise ValueError(f"dense_subcells must be >= 1; got {self.dense_subcells}")
+            raise ValueError(f"{named('dense_subcells')} must be >= 1; got {self.dense_subcells}")
         if self.dense_subcells is not None and not self.dense_weight:
             raise ValueError("dense_subcells (--dense-subcells) shapes the dense loss's targets: it needs "
                              "dense_weight (--dense-weight) > 0")
@@ -440,13 +446,13 @@ class TrainConfig:
             raise ValueError("image_token_norm (--image-token-norm) is set by the vlm stage, which trains System 2; "
                              f"the {self.stage} stage keeps its --init checkpoint's System 2")
         if self.precision not in ("fp32", "bf16"):
-            raise ValueError(f"precision must be fp32 or bf16; got {self.precision!r}")
+            raise ValueError(f"{named('precision')} must be fp32 or bf16; got {self.precision!r}")
         if self.future_stride is not None and self.future_stride < 1:
-            raise ValueError(f"future_stride must be >= 1; got {self.future_stride}")
+            raise ValueError(f"{named('future_stride')} must be >= 1; got {self.future_stride}")
         if not self.clip_seconds > 0:
-            raise ValueError(f"clip_seconds must be > 0; got {self.clip_seconds}")
+            raise ValueError(f"{named('clip_seconds')} must be > 0; got {self.clip_seconds}")
         if self.threads is not None and self.threads < 1:
-            raise ValueError(f"threads must be >= 1; got {self.threads}")
+            raise ValueError(f"{named('threads')} must be >= 1; got {self.threads}")
         if self.stage == "video" and not self.use_system3:
             raise ValueError("the video stage trains System 3: it cannot run with --no-system3")
         if self.stage == "vlm" and not self.use_system2:

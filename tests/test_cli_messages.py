@@ -1,0 +1,55 @@
+"""Mistakes a newcomer makes on the command line: exit code 2 and one line naming the flag, before any model is
+loaded or simulation built (`main` in-process; no traceback)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from trivla_drake.cli import main
+
+
+def _error(capsys, *argv) -> str:
+    assert main(list(argv)) == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["sim", "--seconds", "0"], "--seconds must be positive"),
+    (["bench", "--preset", "tiny", "--checkpoint", "models/trivla_cpu"], "--preset (an UNTRAINED model"),
+    (["demo", "--preset", "tiny", "--checkpoint", "models/trivla_cpu"], "--preset (an UNTRAINED model"),
+    (["demo", "--policy", "oracle", "--preset", "tiny"], "--preset, --noise-scale"),
+    (["demo", "--policy", "oracle", "--latency", "measured"], "--latency go with --policy trivla"),
+    (["demo", "--latency", "-0.1"], "a finite number of seconds >= 0, got '-0.1'"),
+    (["demo", "--latency", "soon"], "--latency must be 'zero', 'measured'"),
+    (["evaluate", "--episodes", "-2"], "--episodes and --chains must be >= 0"),
+    (["evaluate", "--seed", "-1"], "--seed must be an integer from 0"),
+])
+def test_flag_errors_name_the_flag(capsys, argv, message):
+    assert message in _error(capsys, *argv)
+
+
+def test_train_errors_name_the_flag(capsys, tmp_path):
+    err = _error(capsys, "train", "--stage", "policy", "--data", str(tmp_path), "--out", str(tmp_path / "o"),
+                 "--steps", "-5")
+    assert "steps (--steps) must be >= 1" in err
+
+
+def test_a_checkpoint_that_is_not_one_says_what_it_is(capsys, tmp_path):
+    assert "does not exist" in _error(capsys, "demo", "--checkpoint", str(tmp_path / "nope"))
+    (tmp_path / "model.safetensors").write_bytes(b"")
+    err = _error(capsys, "demo", "--checkpoint", str(tmp_path / "model.safetensors"))
+    assert "is a file: give the folder holding config.json" in err
+    dataset = tmp_path / "dataset"
+    (dataset / "meta").mkdir(parents=True)
+    (dataset / "meta" / "info.json").write_text(json.dumps({"fps": 36}))
+    assert "is a LeRobot dataset, not a checkpoint" in _error(capsys, "demo", "--checkpoint", str(dataset))
+    run = tmp_path / "run"
+    (run / "final").mkdir(parents=True)
+    assert "is a training run's folder: give its checkpoint" in _error(capsys, "demo", "--checkpoint", str(run))
+
+
+def test_tables_name_the_checkpoint_flag(capsys, tmp_path):
+    err = _error(capsys, "tables", "--full", str(tmp_path / "nope"), "--out", str(tmp_path / "t"))
+    assert f"--full {tmp_path / 'nope'} is not a checkpoint directory" in err
