@@ -158,9 +158,10 @@ def test_posture_moves_in_the_null_space_while_the_pose_stays(kinematics):
     assert max(np.linalg.norm(r.pose_error) for r in results) < 1e-4
 
 
-def test_limits_hold_for_thousands_of_random_targets(kinematics):
+@pytest.mark.parametrize("preserve_direction", [False, True])
+def test_limits_hold_for_thousands_of_random_targets(kinematics, preserve_direction):
     rng = np.random.default_rng(2)
-    params = DiffIKParams()
+    params = DiffIKParams(preserve_direction=preserve_direction)
     ik = OsqpDifferentialIK(kinematics, params)
     band_low = kinematics.q_lower + params.position_margin
     band_high = kinematics.q_upper - params.position_margin
@@ -383,3 +384,44 @@ def test_answer_does_not_depend_on_earlier_ticks():
         active += bool(np.any(np.isclose(np.abs(a.v), 0.5 * kinematics.v_max)))
         np.testing.assert_array_equal(a.v, b.v)
     assert active > 10
+
+
+def _largest_off_line_deviation(kinematics, params, q0, action, seconds=0.6):
+    """The hand's largest distance [m] from the straight line of a constant action, played at 36 Hz through
+    `apply_action` and tracked at the diff-IK's rate (kinematics only: q integrates the answers)."""
+    from trivla_drake.systems.action_executor import apply_action
+
+    ik = OsqpDifferentialIK(kinematics, params)
+    q, target = np.array(q0, float), kinematics.ee_pose(q0)
+    start = target[:3, 3].copy()
+    direction = np.asarray(action[:3], float) / np.linalg.norm(action[:3])
+    next_action, deviation = 0.0, 0.0
+    for tick in range(int(seconds / params.dt)):
+        while next_action <= tick * params.dt + 1e-12:
+            target, _ = apply_action(target, np.asarray(action, float))
+            next_action += 1.0 / 36.0
+        result = ik.solve(q, target)
+        _assert_safe(kinematics, params, q, result)
+        q = result.q_next
+        moved = kinematics.ee_pose(q)[:3, 3] - start
+        deviation = max(deviation, float(np.linalg.norm(moved - (moved @ direction) * direction)))
+    return deviation
+
+
+@pytest.mark.parametrize("q0, action", [
+    ((0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785), (0.005, 0.0, -0.005, 0.025, 0.025, 0.0, 1.0)),
+    ((0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785), (0.01, 0.0, -0.01, 0.05, 0.05, 0.0, 1.0)),
+])
+def test_preserve_direction_keeps_the_hand_on_the_commanded_line(kinematics, q0, action):
+    """With the velocity bounds binding, the least-squares QP trades translation against rotation and the hand
+    leaves the line by centimetres; scaling the whole twist keeps it within a millimetre."""
+    default = _largest_off_line_deviation(kinematics, DiffIKParams(), q0, action)
+    kept = _largest_off_line_deviation(kinematics, DiffIKParams(preserve_direction=True), q0, action)
+    assert default > 0.01 and kept < 0.002, (default, kept)
+
+
+def test_preserve_direction_changes_nothing_while_no_bound_binds(kinematics):
+    target = _offset_pose(kinematics.ee_pose(HOME), (0.002, 0.0, 0.0))
+    plain = OsqpDifferentialIK(kinematics, DiffIKParams()).solve(HOME, target)
+    kept = OsqpDifferentialIK(kinematics, DiffIKParams(preserve_direction=True)).solve(HOME, target)
+    np.testing.assert_array_equal(plain.v, kept.v)

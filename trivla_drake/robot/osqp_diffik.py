@@ -72,8 +72,16 @@ class DiffIKParams:
     # accurate to about eps over P's smallest eigenvalue (ticks with no bound active are exact).
     eps_abs: float = 1e-6
     eps_rel: float = 1e-6
-    # OSQP iteration cap; a tick that hits it holds position instead of moving.
+    # OSQP iteration cap; a tick that hits it is solved exactly by active sets (`solve_box_qp`) instead, and
+    # holds position only if that fails too.
     max_iter: int = 1000
+    # When a velocity or position bound binds: False (the default, the demonstrations' controller) solves the
+    # bounded least-squares QP, which may trade the translation against the rotation, so the hand leaves the
+    # straight line to a far target (up to a few cm at the actions' top speed); True scales the whole desired
+    # twist down until the unbounded answer fits the bounds (as Drake's DoDifferentialInverseKinematics keeps the
+    # direction), and falls back to the QP only where even a still twist does not fit (the posture term against
+    # a position limit) or the scale would be about 0.
+    preserve_direction: bool = False
 
 
 class DiffIKStatus(enum.Enum):
@@ -82,7 +90,8 @@ class DiffIKStatus(enum.Enum):
     SOLVED = "solved"
     # OSQP stopped short of its tolerances; the velocity is still clipped into the joint limits.
     SOLVED_INACCURATE = "solved_inaccurate"
-    # Any other OSQP status (iteration cap, infeasible, ...) or a failed SVD: the tick holds, v = 0.
+    # A failed SVD, or an OSQP failure (iteration cap, infeasible, ...) the active-set solve could not answer
+    # either: the tick holds, v = 0.
     SOLVER_FAILED = "solver_failed"
 
 
@@ -150,6 +159,7 @@ class OsqpDifferentialIK:
         self._hessian = np.empty((n, n))
         self._hessian_diagonal = self._hessian.reshape(-1)[:: n + 1]  # a view
         self._gradient = np.empty(n)
+        self._split_gradient = np.empty((n, 2), order="F")  # the twist rows' and the posture row's parts
         self._bounds = np.empty((2, n))  # [l; u] of the QP
 
         # P's values are passed as its upper triangle in CSC order (column by column, rows 0..j):
@@ -227,6 +237,10 @@ class OsqpDifferentialIK:
         _, v, info = dposv(self._hessian, -self._gradient)
         if info == 0 and (bounds[0] <= v).all() and (v <= bounds[1]).all():
             return DiffIKResult(q + p.dt * v, v, DiffIKStatus.SOLVED, error)
+        if info == 0 and p.preserve_direction:
+            scaled = self._scaled_twist_velocity(bounds)
+            if scaled is not None:
+                return DiffIKResult(q + p.dt * scaled, scaled, DiffIKStatus.SOLVED, error)
 
         self._solver.update(
             Px=self._hessian.take(self._triu_flat), q=self._gradient, l=bounds[0], u=bounds[1]
@@ -257,6 +271,26 @@ class OsqpDifferentialIK:
             return DiffIKResult(q + p.dt * v, v, DiffIKStatus.SOLVED, error)
         v = self._polish(result.x, bounds)
         return DiffIKResult(q + p.dt * v, v, status, error)
+
+    def _scaled_twist_velocity(self, bounds: np.ndarray) -> np.ndarray | None:
+        """The unbounded minimiser with the desired twist scaled by the largest alpha in [0, 1] that fits the box:
+        v(alpha) = alpha a + b is affine (a from the twist rows, b from the posture row), so a ratio test over the
+        joints finds alpha. None when b alone leaves the box or alpha is about 0 (the caller then solves the QP)."""
+        rhs = self._split_gradient
+        np.matmul(self._neg_rhs[:6], self._rows[:6], out=rhs[:, 0])
+        np.multiply(self._rows[6], self._neg_rhs[6], out=rhs[:, 1])
+        _, ab, info = dposv(self._hessian, -rhs)
+        if info != 0:
+            return None
+        a, b = ab[:, 0], ab[:, 1]
+        if (b < bounds[0]).any() or (b > bounds[1]).any():
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            limits = np.where(a > 0, (bounds[1] - b) / a, np.where(a < 0, (bounds[0] - b) / a, np.inf))
+        alpha = min(1.0, float(limits.min()))
+        if alpha < 1e-3:
+            return None
+        return np.minimum(np.maximum(alpha * a + b, bounds[0]), bounds[1])  # the clip only removes rounding
 
     def _polish(self, x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         """The exact optimum on the active set OSQP found (what OSQP's own polishing does, silently).
