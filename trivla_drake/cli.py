@@ -60,8 +60,6 @@ def _cmd_bench(args) -> int:
     result: dict = {}
     if args.precision != "float32" and not args.model:
         raise ValueError("--precision goes with --model (the station benchmarks run the model in float32)")
-    if args.preset is not None and args.checkpoint is not None:
-        raise ValueError("--preset (an UNTRAINED model of that preset) and --checkpoint (a trained one): give one")
     if args.model:
         from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
 
@@ -71,6 +69,9 @@ def _cmd_bench(args) -> int:
         else:
             print(format_benchmark_table(model_result))
         return 0
+    from trivla_drake.eval.model_loading import check_model_choice
+
+    check_model_choice(args.checkpoint, args.preset)  # before the station benchmarks, not after
     from trivla_drake.eval.diffik_benchmark import benchmark_diffik
     from trivla_drake.eval.station_benchmark import benchmark_station
     from trivla_drake.station.scenario import load_scenario
@@ -130,8 +131,6 @@ def _cmd_demo(args) -> int:
         from trivla_drake.eval.model_loading import load_model
 
         _set_torch_threads(args.threads)
-        if args.preset is not None and args.checkpoint is not None:
-            raise ValueError("--preset (an UNTRAINED model of that preset) and --checkpoint (a trained one): give one")
         model = load_model(args.checkpoint, preset=args.preset)
         if args.noise_scale is not None:
             model.set_initial_noise_scale(args.noise_scale)

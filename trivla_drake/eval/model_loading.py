@@ -17,10 +17,17 @@ def default_checkpoint_dir() -> Path:
     return models_dir() / DEFAULT_CHECKPOINT_NAME
 
 
+def check_model_choice(checkpoint, preset) -> None:
+    """ValueError when both a checkpoint and a preset are given (one says which model to load)."""
+    if checkpoint is not None and preset is not None:
+        raise ValueError("--preset (an UNTRAINED model of that preset) and --checkpoint (a trained one): give one")
+
+
 def load_model(checkpoint: str | Path | None = None, *, preset: str | None = None, seed: int = 0) -> TriVLA:
     """The checkpoint at `checkpoint`; else, when `preset` is given, an UNTRAINED model of that preset
     (for wiring and timing); else the shipped default checkpoint (models/trivla_cpu); else an UNTRAINED
     `cpu` model. An untrained model is logged as a warning: its actions are meaningless."""
+    check_model_choice(checkpoint, preset)
     if checkpoint is not None:
         return load_checkpoint(str(checkpoint)).eval()
     default = default_checkpoint_dir()
