@@ -131,6 +131,7 @@ def test_cli_runs_chains_and_prints_avg_len(tmp_path, tiny_model):
     result = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--max-seconds", "0.5")
     assert result.returncode == 0, result.stderr[-3000:]
     assert "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |" in result.stdout
+    assert "| 0.00 (one chain) |" in result.stdout  # no standard error from a single chain
     assert "Avg. Len 0.00, control" in result.stdout and "| 0 (1/5) |" in result.stdout
     assert "demo chains" in result.stderr  # the progress bar
     shown = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--max-seconds", "0.3", "--json",

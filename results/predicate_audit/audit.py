@@ -27,7 +27,7 @@ import numpy as np
 
 from trivla_drake.eval.episode import derive_seed, run_episode, shared_env
 from trivla_drake.eval.evaluate import _policy
-from trivla_drake.tasks.scene import BLOCK_HALF
+from trivla_drake.tasks.scene import BLOCK_HALF, fold_quarter_turn
 from trivla_drake.tasks.suite import TASKS
 
 # Half a second at 36 Hz: long enough for a block let go past its base's edge to tip.
@@ -84,7 +84,8 @@ def audit_episode(task: str, seed: int, policy) -> dict:
         return row
     env = shared_env(224 if policy.uses_images else None)
     initial, params = seen["initial"], tuple(result.params)
-    row["strict_at_success"] = strict_success(task, params, initial, env.scene())
+    at_success = env.scene()
+    row["strict_at_success"] = strict_success(task, params, initial, at_success)
     hold = np.zeros(7)
     for _ in range(HOLD_STEPS):
         hold[6] = 1.0 if env.scene().finger_width > 0.04 else -1.0
@@ -92,7 +93,20 @@ def audit_episode(task: str, seed: int, policy) -> dict:
     after = env.scene()
     row["success_after_hold"] = bool(TASKS[task].success(params, initial, after))
     row["strict_after_hold"] = strict_success(task, params, initial, after)
+    row["at_success"], row["after_hold"] = describe(params[0], initial, at_success), describe(params[0], initial, after)
     return row
+
+
+def describe(color: str, initial, scene) -> dict:
+    """What a person would look at: the block's height, tilt, turn and shift since the start, the hand's opening
+    and its distance from the block."""
+    block = scene.blocks[color]
+    tilt = float(np.degrees(np.arccos(np.clip(np.max(np.abs(block[2, :3])), -1.0, 1.0))))
+    turn = float(np.degrees(fold_quarter_turn(scene.block_yaw(color) - initial.block_yaw(color))))
+    shift = scene.block_position(color)[:2] - initial.block_position(color)[:2]
+    return {"z_m": round(float(block[2, 3]), 4), "tilt_deg": round(tilt, 1), "turn_deg": round(turn, 1),
+            "shift_m": round(float(np.linalg.norm(shift)), 4), "finger_width_m": round(float(scene.finger_width), 4),
+            "hand_to_block_m": round(float(np.linalg.norm(scene.block_position(color) - scene.tcp[:3, 3])), 4)}
 
 
 def summarize(rows: list[dict]) -> dict:

@@ -305,7 +305,8 @@ def format_chain_markdown(report: dict) -> list[str]:
         "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |",
         "| --- | --- | --- | --- | --- | --- | --- |",
         f"| {c['count']} | " + " | ".join(f"{x:.2f}" for x in c["completed_at_least"])
-        + f" | {report['chain_avg_len']:.2f} ± {report['chain_avg_len_stderr']:.2f} |",
+        + f" | {report['chain_avg_len']:.2f}"
+        + (f" ± {report['chain_avg_len_stderr']:.2f} |" if c["count"] > 1 else " (one chain) |"),
     ]
     if "by_position" in c:
         lines += [
