@@ -86,9 +86,16 @@ def saved(tmp_path_factory):
     from trivla_drake.nn.config import make_config
     from trivla_drake.nn.normalization import NormalizationStats
     from trivla_drake.nn.trivla import TriVLA
+    import torch
 
     directory = str(tmp_path_factory.mktemp("ckpt"))
     model = TriVLA(make_config("tiny", init_seed=3)).eval()
+    # Weights no fresh model of that config has (a loader that rebuilt from config.json's init_seed and skipped the
+    # weights file would otherwise load an identical model).
+    generator = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for parameter in model.parameters():
+            parameter.add_(0.01 * torch.randn(parameter.shape, generator=generator))
     rng = np.random.default_rng(0)
     model.set_normalization(
         NormalizationStats.from_data(rng.normal(size=(50, 18)), rng.uniform(-0.05, 0.05, size=(50, 10, 7)))

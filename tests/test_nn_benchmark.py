@@ -8,8 +8,12 @@ from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
 
 def test_tiny_benchmark_reports_every_system_and_table4_row():
     threads = torch.get_num_threads()
-    result = benchmark_model("tiny", repeats=1, seed=0, threads=1)
-    assert torch.get_num_threads() == threads  # restored
+    torch.set_num_threads(2)  # not the benchmark's own setting, so both its setting and the restore are seen
+    try:
+        result = benchmark_model("tiny", repeats=1, seed=0, threads=1)
+        assert torch.get_num_threads() == 2  # restored
+    finally:
+        torch.set_num_threads(threads)
     assert result["skipped"] is False and result["torch_threads"] == 1
     assert set(result["params_millions"]) == {"system1", "system2", "system3", "total"}
     assert set(result["latency_ms"]) == {"system1", "system2", "system3", "full"}

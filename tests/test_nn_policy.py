@@ -72,7 +72,9 @@ def test_video_former_shapes_eq4():
         former([static, torch.randn(2, 4, 12, 4, 4)])
 
 
-def test_dit_starts_as_identity_blocks_and_respects_the_memory_mask():
+def test_dit_starts_ignoring_its_condition_and_respects_the_memory_mask():
+    """AdaLN-Zero: every block's modulation starts at zero, so a fresh DiT's output does not depend on the time
+    condition yet (its cross-attention to the memory is not gated, so the blocks are not identities)."""
     torch.manual_seed(0)
     dit = DiffusionTransformer(dim=16, depth=2, num_heads=2)
     x, cond = torch.randn(2, 6, 16), torch.randn(2, 16)
@@ -80,6 +82,7 @@ def test_dit_starts_as_identity_blocks_and_respects_the_memory_mask():
     mask = torch.tensor([[True, True, False, False]] * 2)
     out = dit(x, cond, memory, mask)
     assert out.shape == x.shape
+    torch.testing.assert_close(out, dit(x, torch.randn(2, 16), memory, mask))
     # masked memory tokens have no influence
     memory2 = memory.clone()
     memory2[:, 2:] += 100.0

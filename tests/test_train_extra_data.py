@@ -99,6 +99,8 @@ def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(fold
     both = aggregate_stats([a.stats, *(episode_stats(b.episodes[e]) for e in (3, 4))])  # b's 0-2 are a's
     model = load_checkpoint(summary["final_checkpoint"])
     assert np.allclose(model.normalization.state_mean, both["observation.state"]["mean"], atol=1e-6)
+    # ... which --data's statistics alone would not give (b's own equal the union here: its 0-2 are a's).
+    assert not np.allclose(model.normalization.state_mean, a.stats["observation.state"]["mean"], atol=1e-4)
     assert np.allclose(model.normalization.action_max, both["action"]["max"], atol=1e-6)
     saved = json.loads((out / "final" / "train_config.json").read_text())
     assert saved["extra_data"] == [folders["b"]]

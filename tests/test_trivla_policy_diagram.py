@@ -78,11 +78,25 @@ def test_a_system1_reading_its_subgoal_offset_gets_the_robot_state():
     config = make_config("tiny")
     config = dataclasses.replace(config, policy=dataclasses.replace(
         config.policy, tcp_features=True, instruction_grounding=True, subgoal_offset=True))
-    diagram, station, policy = _closed_loop(TriVLA(config).eval())
+    model = TriVLA(config).eval()
+    seen = []
+    sample_actions = model.sample_actions
+
+    def spy(*args, **kwargs):  # what System 1's inference hands the model
+        seen.append(np.array(kwargs["state"]))
+        return sample_actions(*args, **kwargs)
+
+    model.sample_actions = spy
+    diagram, station, policy = _closed_loop(model)
     simulator = Simulator(diagram)
+    start = station.GetOutputPort("panda.state").Eval(station.GetMyContextFromRoot(simulator.get_context())).copy()
     _rollout(simulator, diagram, station, 0.3)
     chunk = policy.GetOutputPort("action_chunk").Eval(policy.GetMyContextFromRoot(simulator.get_context()))
     assert chunk.shape == (10, 7) and np.all(np.isfinite(chunk))
+    # The first inference read the robot's state at its tick (the arm still at its start: the offset MLP starts at
+    # zero, so the chunk alone would not show a missing state).
+    assert seen and seen[0].shape == (18,)
+    np.testing.assert_allclose(seen[0][:9], start[:9], atol=1e-3)
 
 
 def test_same_seed_same_rollout_and_contexts_are_independent(tiny_model):
