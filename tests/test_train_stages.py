@@ -304,9 +304,9 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     with pytest.raises(ValueError, match="grounding_weight.*needs System 2"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "n"), use_system2=False,
                     grounding_weight=1.0).resolved().validate()
-    with pytest.raises(ValueError, match="grounding_lr_scale must be a finite number > 0"):
+    with pytest.raises(ValueError, match="grounding_lr_scale \\(--grounding-lr-scale\\) must be a finite number > 0"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "s"), grounding_lr_scale=0.0).resolved().validate()
-    with pytest.raises(ValueError, match="grounding_weight must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="grounding_weight \\(--grounding-weight\\) must be a finite number >= 0"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
 
 
@@ -445,7 +445,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert not (tmp_path / "f1").exists() or not any((tmp_path / "f1").iterdir())
     with pytest.raises(ValueError, match="grounding_phase.*bind.*grounding_weight"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), grounding_phase="bind").resolved().validate()
-    with pytest.raises(ValueError, match="grounding_phase must be one of joint, bind, follow"):
+    with pytest.raises(ValueError, match="grounding_phase \\(--grounding-phase\\) must be one of joint, bind, follow"):
         TrainConfig(stage="policy", data=data, out=str(tmp_path / "p"), grounding_weight=1.0,
                     grounding_phase="both").resolved().validate()
 
@@ -464,7 +464,7 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
     # the policy stage keeps the head untouched (it trains System 1 only)
     with pytest.raises(ValueError, match="dense_weight.*not the policy stage"):
         TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), dense_weight=1.0).resolved().validate()
-    with pytest.raises(ValueError, match="dense_weight must be >= 0"):
+    with pytest.raises(ValueError, match="dense_weight \\(--dense-weight\\) must be >= 0"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=-1.0).resolved().validate()
     # --dense-subcells on a model whose head has whole cells: a fresh, wider head, recorded in the config
     finer = train(TrainConfig(stage="vlm", out=str(tmp_path / "finer"), init=summary["final_checkpoint"],
@@ -479,7 +479,7 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
     assert load_checkpoint(again["final_checkpoint"]).config.vision_language.dense_subcells == 2
     with pytest.raises(ValueError, match="dense_subcells.*needs dense_weight"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_subcells=2).resolved().validate()
-    with pytest.raises(ValueError, match="dense_subcells must be >= 1"):
+    with pytest.raises(ValueError, match="dense_subcells \\(--dense-subcells\\) must be >= 1"):
         TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=1.0, dense_subcells=0).resolved().validate()
 
 
