@@ -253,6 +253,8 @@ def summarize_chains(chains: list[dict]) -> dict:
         ],
         # Each chain's tasks in order, up to and including the one that failed (older reports lack it).
         "tasks": [[s["task"] for s in c.get("subtasks", ())] for c in chains],
+        # Each chain's tasks done, in chain order (reports before session 66 lack it).
+        "completed": completed,
     }
     summary["by_position"] = chain_success_by_position(summary["tasks"], completed)
     return {"chain_avg_len": mean, "chain_avg_len_stderr": math.sqrt(var / n), "chains": summary}
