@@ -193,3 +193,24 @@ def test_killed_collection_keeps_finished_episodes_and_resumes(tmp_path):
     samples = TrainingSamples(reader)
     assert samples[len(samples) - 1]["action"].shape == (10, 7)
     assert not (out / ".staging").exists()
+
+
+def test_collected_episode_rows_share_one_schema(tmp_path):
+    """Every episode's meta/episodes row has every trivla/* column in one type (an unused setting at its default), so
+    the folder reads as one table; before, a fixture task's empty params were list<null> beside list<string>."""
+    import pyarrow.dataset as ds
+
+    from trivla_drake.data.lerobot import EPISODE_COLUMN_TYPES
+    from trivla_drake.eval.collect import CollectConfig, collect
+
+    out = tmp_path / "mixed"
+    collect(CollectConfig(out=str(out), episodes_per_task=1, tasks=["lift_block", "open_drawer"], image_size=32),
+            progress=False)
+    table = ds.dataset(out / "meta" / "episodes", format="parquet").to_table()
+    assert table.num_rows == 2
+    for name, kind in EPISODE_COLUMN_TYPES.items():
+        assert table.schema.field(name).type == kind, name
+    rows = table.to_pylist()
+    params = {r["trivla/task"]: r["trivla/params"] for r in rows}
+    assert params["open_drawer"] == [] and len(params["lift_block"]) == 1 and isinstance(params["lift_block"][0], str)
+    assert all(r["trivla/stacked_pick"] is False and r["trivla/prelude"] == [] for r in rows)

@@ -187,3 +187,18 @@ def test_a_resume_on_other_folders_is_refused_naming_them(folders, tmp_path):
         train(TrainConfig(steps=4, resume=True, extra_data=(folders["b"],), **common))
     resumed = train(TrainConfig(steps=4, resume=True, **common))  # the same folder resumes
     assert (resumed["resumed_from_step"], resumed["steps"]) == (2, 4)
+
+
+def test_an_episode_keeps_its_content_key_whether_its_unused_settings_are_written_or_not():
+    """Rows written before session 66 leave unused settings out; newer rows write their defaults: the same episode."""
+    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS
+
+    class Rows:
+        def __init__(self, *rows):
+            self.episodes = list(rows)
+
+    old = {"episode_index": 0, "trivla/task": "lift_block", "trivla/seed": 7, "trivla/params": ["red"]}
+    new = {**old, **EPISODE_COLUMN_DEFAULTS}
+    other = {**new, "trivla/stacked_pick": True}
+    keys = [episode_content_key(Rows(row), 0) for row in (old, new, other)]
+    assert keys[0] == keys[1] != keys[2]

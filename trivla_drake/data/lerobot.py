@@ -56,6 +56,29 @@ TAKEOVER_KEY = "trivla/takeover"  # a learned policy drove first (--takeover CHE
 PRELUDE_KEY = "trivla/prelude"  # tasks the oracle completed, unrecorded, before the episode's (--prelude-tasks)
 STACKED_PICK_KEY = "trivla/stacked_pick"  # the block to pick up started on top of another (--stacked-picks)
 DETOURS_KEY = "trivla/detours"  # places the oracle visited before its task (eval/collect.py, --detours)
+# The Arrow types of the trivla/* episode columns, so every episode's row has the same schema whatever it holds (an
+# empty list would otherwise be list<null> in one file and list<string> in the next, and readers of the whole
+# meta/episodes folder, pyarrow.dataset or Hugging Face datasets, drop or refuse such columns).
+EPISODE_COLUMN_TYPES = {
+    EPISODE_TASK_KEY: pa.string(),
+    "trivla/attempt": pa.int64(),
+    "trivla/seed": pa.int64(),
+    "trivla/params": pa.list_(pa.string()),
+    ACTION_NOISE_KEY: pa.float64(),
+    PERTURBED_FRAMES_KEY: pa.list_(pa.int64()),
+    YAW_TWISTS_KEY: pa.bool_(),
+    MISSED_GRASPS_KEY: pa.bool_(),
+    APPROACH_DRIFTS_KEY: pa.bool_(),
+    TAKEOVER_KEY: pa.string(),
+    PRELUDE_KEY: pa.list_(pa.string()),
+    STACKED_PICK_KEY: pa.bool_(),
+    DETOURS_KEY: pa.int64(),
+}
+# What a `collect` episode without one of these settings records (before session 66 it left the column out).
+EPISODE_COLUMN_DEFAULTS = {
+    ACTION_NOISE_KEY: 0.0, PERTURBED_FRAMES_KEY: [], YAW_TWISTS_KEY: False, MISSED_GRASPS_KEY: False,
+    APPROACH_DRIFTS_KEY: False, TAKEOVER_KEY: "", PRELUDE_KEY: [], STACKED_PICK_KEY: False, DETOURS_KEY: 0,
+}
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},
@@ -176,6 +199,16 @@ def _tasks_table(tasks: list[str]) -> pa.Table:
         "pandas_version": "2.2.0",
     }
     return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+
+
+def _typed_row_table(row: dict) -> pa.Table:
+    """A one-row table of `row`, its trivla/* columns in their EPISODE_COLUMN_TYPES."""
+    table = pa.Table.from_pylist([row])
+    for i, name in enumerate(table.column_names):
+        if name in EPISODE_COLUMN_TYPES:
+            table = table.set_column(i, pa.field(name, EPISODE_COLUMN_TYPES[name]),
+                                     table.column(i).cast(EPISODE_COLUMN_TYPES[name]))
+    return table
 
 
 def _read_episode_rows(root: Path) -> list[dict]:
@@ -365,7 +398,7 @@ class LeRobotWriter:
         for key, value in (extra or {}).items():
             row[key] = value
         # The commit: from here on the episode is part of the dataset.
-        _atomic_write_table(self.root / EPISODES_PATH.format(**where), pa.Table.from_pylist([row]))
+        _atomic_write_table(self.root / EPISODES_PATH.format(**where), _typed_row_table(row))
         self._episodes.append(row)
         self._write_info()
         return index

@@ -42,6 +42,7 @@ from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
     APPROACH_DRIFTS_KEY,
     DETOURS_KEY,
+    EPISODE_COLUMN_DEFAULTS,
     EPISODE_TASK_KEY,
     MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
@@ -305,6 +306,8 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         "trivla/attempt": attempt,
                         "trivla/seed": result["seed"],
                         "trivla/params": list(result["params"]),
+                        # Every setting's column on every episode (its default where unused): one schema.
+                        **EPISODE_COLUMN_DEFAULTS,
                         **({PERTURBED_FRAMES_KEY: result["perturbed_frames"]} if config.disturbance() else {}),
                         **({ACTION_NOISE_KEY: config.action_noise} if config.action_noise else {}),
                         **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
@@ -312,7 +315,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
                         **({TAKEOVER_KEY: Path(config.takeover).resolve().name} if config.takeover else {}),
                         **({DETOURS_KEY: config.detours} if config.detours else {}),
-                        **({PRELUDE_KEY: result["prelude"]} if result.get("prelude") else {}),
+                        **({PRELUDE_KEY: list(result["prelude"])} if result.get("prelude") else {}),
                         **({STACKED_PICK_KEY: True} if result.get("stacked_pick") else {}),
                     },
                 )

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch.utils.data
 
-from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_stats
+from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, LeRobotReader, aggregate_stats, episode_stats
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
 
@@ -33,7 +33,8 @@ def episode_content_key(reader: LeRobotReader, episode: int) -> str:
     (index, files, offsets, and the statistics of the index columns): equal for the same episode
     written into two folders."""
     row = {k: v for k, v in reader.episodes[episode].items()
-           if k not in _LOCATING_KEYS and not k.startswith(_LOCATING_PREFIXES)}
+           if k not in _LOCATING_KEYS and not k.startswith(_LOCATING_PREFIXES)
+           and not (k in EPISODE_COLUMN_DEFAULTS and v == EPISODE_COLUMN_DEFAULTS[k])}  # as written before they were
     return hashlib.sha256(json.dumps(row, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
