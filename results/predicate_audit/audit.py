@@ -7,6 +7,8 @@ A review found three ways a predicate can say yes too early or too easily:
 - unstack_block: the top block needs only to lie on the table on any face, so a knocked-over tower scores;
 - rotate_block_left/right: the block may also be shoved across the table.
 
+The other tasks are audited the same way (their stricter reading is their own predicate).
+
 This script runs `evaluate`'s episodes (the same seeds, scenes, instructions and policy seeds) and, at each success,
 lets the hand hold still (`HOLD_STEPS` control steps of zero motion, the gripper as it is) and asks again, with the
 task's own predicate and a stricter one. It changes no predicate: it measures how many reported successes the
@@ -93,7 +95,9 @@ def audit_episode(task: str, seed: int, policy) -> dict:
     after = env.scene()
     row["success_after_hold"] = bool(TASKS[task].success(params, initial, after))
     row["strict_after_hold"] = strict_success(task, params, initial, after)
-    row["at_success"], row["after_hold"] = describe(params[0], initial, at_success), describe(params[0], initial, after)
+    if params and params[0] in after.blocks:  # a block task
+        row["at_success"] = describe(params[0], initial, at_success)
+        row["after_hold"] = describe(params[0], initial, after)
     return row
 
 
