@@ -66,3 +66,14 @@ def test_the_oracle_s_successes_survive_every_reading(results_script, tmp_path):
     for task in ("stack_block", "unstack_block"):
         assert summary[task] == {"episodes": 1, "successes": 1, "strict_at_success": 1, "success_after_hold": 1,
                                  "strict_after_hold": 1}
+
+
+def test_the_hold_keeps_a_lifted_block_in_the_hand(results_script):
+    """The hold keeps the last gripper command: a lift stays a lift (a first version opened the hand on a block
+    45 mm wide and dropped every lifted block)."""
+    audit = results_script("predicate_audit/audit.py")
+    from trivla_drake.eval.episode import derive_seed
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    row = audit.audit_episode("lift_block", derive_seed(1000, "lift_block", 0), OraclePolicy())
+    assert row["success"] and row["success_after_hold"] and row["after_hold"]["finger_width_m"] < 0.06

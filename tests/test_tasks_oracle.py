@@ -56,3 +56,16 @@ def test_executor_integrates_the_actions_exactly():
     np.testing.assert_allclose(obs["ee_target"], X, atol=1e-12)
     np.testing.assert_allclose(obs["tcp_pose"][:3, 3], X[:3, 3], atol=3e-3)
     assert obs["state"].shape == (18,) and abs(obs["time"] - 114 / 36) < 1e-9
+
+
+def test_env_tells_the_last_applied_action():
+    env = TabletopEnv(image_size=None)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.last_action
+    env.reset(sample_scene(np.random.default_rng(0), env.layout()))
+    np.testing.assert_array_equal(env.last_action, np.zeros(7))
+    action = np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
+    env.step(action, images=False)
+    np.testing.assert_array_equal(env.last_action, action)
+    env.last_action[0] = 5.0  # a copy
+    assert env.last_action[0] == 0.01

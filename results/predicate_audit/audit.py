@@ -10,7 +10,7 @@ A review found three ways a predicate can say yes too early or too easily:
 The other tasks are audited the same way (their stricter reading is their own predicate).
 
 This script runs `evaluate`'s episodes (the same seeds, scenes, instructions and policy seeds) and, at each success,
-lets the hand hold still (`HOLD_STEPS` control steps of zero motion, the gripper as it is) and asks again, with the
+lets the hand hold still (`HOLD_STEPS` control steps of zero motion, the gripper as last commanded) and asks again, with the
 task's own predicate and a stricter one. It changes no predicate: it measures how many reported successes the
 stricter reading would keep, so the reported figures can be read with that in mind.
 
@@ -89,8 +89,8 @@ def audit_episode(task: str, seed: int, policy) -> dict:
     at_success = env.scene()
     row["strict_at_success"] = strict_success(task, params, initial, at_success)
     hold = np.zeros(7)
+    hold[6] = env.last_action[6]  # the hand keeps its last gripper command (holding a lifted block, or letting go)
     for _ in range(HOLD_STEPS):
-        hold[6] = 1.0 if env.scene().finger_width > 0.04 else -1.0
         env.step(hold, images=False)
     after = env.scene()
     row["success_after_hold"] = bool(TASKS[task].success(params, initial, after))

@@ -134,6 +134,13 @@ class TabletopEnv:
     def step_index(self) -> int:
         return self._step_index
 
+    @property
+    def last_action(self) -> np.ndarray:
+        """The action the last step applied (zeros after `reset`): a copy, (7,)."""
+        if not self._started:
+            raise RuntimeError("TabletopEnv.last_action read before reset")
+        return np.array(self.diagram.GetInputPort("action").Eval(self._context), dtype=float)
+
     def scene(self) -> SceneState:
         """Ground truth of the scene now."""
         return self.handles.read(self._context)
