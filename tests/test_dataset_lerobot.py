@@ -200,7 +200,7 @@ def test_collected_episode_rows_share_one_schema(tmp_path):
     the folder reads as one table; before, a fixture task's empty params were list<null> beside list<string>."""
     import pyarrow.dataset as ds
 
-    from trivla_drake.data.lerobot import EPISODE_COLUMN_TYPES
+    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, EPISODE_COLUMN_TYPES
     from trivla_drake.eval.collect import CollectConfig, collect
 
     out = tmp_path / "mixed"
@@ -213,4 +213,6 @@ def test_collected_episode_rows_share_one_schema(tmp_path):
     rows = table.to_pylist()
     params = {r["trivla/task"]: r["trivla/params"] for r in rows}
     assert params["open_drawer"] == [] and len(params["lift_block"]) == 1 and isinstance(params["lift_block"][0], str)
-    assert all(r["trivla/stacked_pick"] is False and r["trivla/prelude"] == [] for r in rows)
+    # Unused settings are written as EPISODE_COLUMN_DEFAULTS, which content keys leave out (dataset_union).
+    for key, default in EPISODE_COLUMN_DEFAULTS.items():
+        assert all(r[key] == default for r in rows), key

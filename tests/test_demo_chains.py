@@ -38,7 +38,8 @@ class _Predicate:
 
 
 def test_a_chain_hands_each_task_to_the_policy_in_turn(tiny_model, monkeypatch):
-    from trivla_drake.eval.demo_chains import CHECK_PERIOD_S, run_trivla_chain_demo
+    from trivla_drake.eval.demo import CHECK_PERIOD_S
+    from trivla_drake.eval.demo_chains import run_trivla_chain_demo
 
     # Each task is "done" at the first check after it starts (the predicate sees a new scene read).
     _Predicate(monkeypatch, lambda params, initial, current: initial is not current)

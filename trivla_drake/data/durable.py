@@ -1,4 +1,4 @@
-"""Files written durably: `fsync_file` puts a file's bytes on disk before it is renamed into place (so a power
+"""Files written durably: `fsync_file` (and `fsync_directory`, for a folder's names) puts a file's bytes on disk before it is renamed into place (so a power
 loss after the rename cannot leave an empty or partial file under the final name); `atomic_write_bytes` and
 `atomic_write_text` write through such a flushed temporary sibling."""
 
@@ -12,6 +12,15 @@ def fsync_file(path: str | os.PathLike) -> None:
     """Flushes the file at `path` (already closed by its writer) to disk."""
     with open(path, "rb") as stream:
         os.fsync(stream.fileno())
+
+
+def fsync_directory(path: str | os.PathLike) -> None:
+    """Flushes a folder's entries (the names of the files in it) to disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

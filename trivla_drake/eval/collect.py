@@ -42,7 +42,6 @@ from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
     APPROACH_DRIFTS_KEY,
     DETOURS_KEY,
-    EPISODE_COLUMN_DEFAULTS,
     EPISODE_TASK_KEY,
     MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
@@ -306,17 +305,16 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         "trivla/attempt": attempt,
                         "trivla/seed": result["seed"],
                         "trivla/params": list(result["params"]),
-                        # Every setting's column on every episode (its default where unused): one schema.
-                        **EPISODE_COLUMN_DEFAULTS,
-                        **({PERTURBED_FRAMES_KEY: result["perturbed_frames"]} if config.disturbance() else {}),
-                        **({ACTION_NOISE_KEY: config.action_noise} if config.action_noise else {}),
-                        **({YAW_TWISTS_KEY: True} if config.yaw_twists else {}),
-                        **({MISSED_GRASPS_KEY: True} if config.missed_grasps else {}),
-                        **({APPROACH_DRIFTS_KEY: True} if config.approach_drifts else {}),
-                        **({TAKEOVER_KEY: Path(config.takeover).resolve().name} if config.takeover else {}),
-                        **({DETOURS_KEY: config.detours} if config.detours else {}),
-                        **({PRELUDE_KEY: list(result["prelude"])} if result.get("prelude") else {}),
-                        **({STACKED_PICK_KEY: True} if result.get("stacked_pick") else {}),
+                        # Every setting's column on every episode (EPISODE_COLUMN_DEFAULTS where unused): one schema.
+                        PERTURBED_FRAMES_KEY: result["perturbed_frames"],  # empty without a disturbance
+                        ACTION_NOISE_KEY: float(config.action_noise),
+                        YAW_TWISTS_KEY: bool(config.yaw_twists),
+                        MISSED_GRASPS_KEY: bool(config.missed_grasps),
+                        APPROACH_DRIFTS_KEY: bool(config.approach_drifts),
+                        TAKEOVER_KEY: Path(config.takeover).resolve().name if config.takeover else "",
+                        DETOURS_KEY: int(config.detours),
+                        PRELUDE_KEY: list(result.get("prelude") or ()),
+                        STACKED_PICK_KEY: bool(result.get("stacked_pick")),
                     },
                 )
                 done[task].add(attempt)

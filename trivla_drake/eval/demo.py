@@ -130,10 +130,11 @@ class DemoLoop:
     def executor(self):
         return self.loop.policy.systems["executor"]
 
-    def new_report(self) -> DemoReport:
+    def new_report(self, kind: type[DemoReport] = DemoReport) -> DemoReport:
+        """An empty report of `kind` (a DemoReport or a subclass) with this loop's settings."""
         latency = self.latency.mode if self.latency.mode != "fixed" else f"{self.latency.seconds}s"
-        return DemoReport(policy="trivla", latency=latency, execute_steps=self.execute_steps,
-                          ensemble_decay=self.ensemble_decay)
+        return kind(policy="trivla", latency=latency, execute_steps=self.execute_steps,
+                    ensemble_decay=self.ensemble_decay)
 
 
 def build_demo_loop(
@@ -176,14 +177,19 @@ def advance_until_success(simulator, handles: StationHandles, task, params, unti
 
 
 def _episodes_with_bar(report: DemoReport, episodes: int, task_name: str, progress: bool):
-    """range(episodes), with a tqdm bar on stderr (when `progress`) that shows `report`'s successes so far."""
+    """range(episodes), with a bar that shows `report`'s successes so far."""
+    return counted_with_bar(episodes, f"demo {task_name}", "ep", progress, lambda: {
+        "success": f"{sum(e['success'] for e in report.episodes)}/{len(report.episodes)}"})
+
+
+def counted_with_bar(count: int, description: str, unit: str, progress: bool, postfix):
+    """range(count), with a tqdm bar on stderr (when `progress`) showing `postfix()` (a dict) after each item."""
     from tqdm import tqdm
 
-    with tqdm(total=episodes, desc=f"demo {task_name}", unit="ep", disable=not progress) as bar:
-        for episode in range(episodes):
-            yield episode
-            bar.set_postfix(success=f"{sum(e['success'] for e in report.episodes)}/{len(report.episodes)}",
-                            refresh=False)
+    with tqdm(total=count, desc=description, unit=unit, disable=not progress) as bar:
+        for index in range(count):
+            yield index
+            bar.set_postfix(postfix(), refresh=False)
             bar.update(1)
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.geometry import Meshcat
 
-from trivla_drake.eval.demo import CHECK_PERIOD_S, DemoReport, advance_until_success, build_demo_loop
+from trivla_drake.eval.demo import DemoReport, advance_until_success, build_demo_loop, counted_with_bar
 from trivla_drake.eval.episode import derive_seed
 from trivla_drake.eval.evaluate import summarize_chains
 from trivla_drake.nn import TriVLA
@@ -33,12 +33,13 @@ from trivla_drake.tasks.suite import get_task
 
 @dataclass
 class ChainDemoReport(DemoReport):
-    """A `DemoReport` whose episodes are the chains' tasks, in order, with the chains themselves."""
+    """A `DemoReport` of chains: each with its tasks (`subtasks`), in order; no episodes of their own."""
 
     chains: list[dict] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         result = super().as_dict()
+        del result["episodes"]  # the chains' subtasks are the episodes
         del result["success_rate"]  # the tasks after a failure are never tried: Avg. Len is the measure
         result["chain_runs"] = self.chains
         if self.chains:
@@ -73,9 +74,7 @@ def run_trivla_chain_demo(
     demo = build_demo_loop(model, latency=latency, scenario=scenario, meshcat=meshcat, execute_steps=execute_steps,
                            ensemble_decay=ensemble_decay, stage_offset_s=stage_offset_s)
     loop, handles, executor = demo.loop, demo.handles, demo.executor
-    base = demo.new_report()
-    report = ChainDemoReport(policy=base.policy, latency=base.latency, execute_steps=base.execute_steps,
-                             ensemble_decay=base.ensemble_decay)
+    report = demo.new_report(ChainDemoReport)
     instruction_port = loop.diagram.GetInputPort("instruction")
     for index in _chains_with_bar(report, chains, progress):
         chain_seed = derive_seed(seed, "chain", index)
@@ -109,7 +108,6 @@ def run_trivla_chain_demo(
             subtask = {"task": instance.task, "instruction": instance.instruction, "seed": chain_seed,
                        "success": success, "sim_time": context.get_time() - began, "reason": reason}
             chain["subtasks"].append(subtask)
-            report.episodes.append(subtask)
             if not success:
                 chain["reason"] = f"{instance.task}: {reason}"
                 break
@@ -120,12 +118,6 @@ def run_trivla_chain_demo(
 
 
 def _chains_with_bar(report: ChainDemoReport, chains: int, progress: bool):
-    """range(chains), with a tqdm bar on stderr (when `progress`) that shows the Avg. Len so far."""
-    from tqdm import tqdm
-
-    with tqdm(total=chains, desc="demo chains", unit="chain", disable=not progress) as bar:
-        for index in range(chains):
-            yield index
-            done = [c["completed"] for c in report.chains]
-            bar.set_postfix(avg_len=f"{np.mean(done):.2f}", refresh=False)
-            bar.update(1)
+    """range(chains), with a bar that shows the Avg. Len so far."""
+    return counted_with_bar(chains, "demo chains", "chain", progress,
+                            lambda: {"avg_len": f"{np.mean([c['completed'] for c in report.chains]):.2f}"})

@@ -4,8 +4,9 @@ A periodic unrestricted update runs one inference; its result, a small numpy pay
 in the Context's abstract state (`InferenceSlots`) and published on one abstract output port when
 the latency model says it is ready. The output is a function of the state and the time (a declared
 prerequisite, so Drake's caching stays right): an event at each ready time would need a timed or
-per-step event, where the readers (the next stage's periodic ticks) only ever look at tick times. The network's weights stay on the system object, read-only:
-Drake deep-copies abstract state on every update and on Context clones.
+per-step event, where the readers (the next stage's periodic ticks) only ever look at tick times.
+The network's weights stay on the system object, read-only: Drake deep-copies abstract state on
+every update and on Context clones.
 """
 
 from __future__ import annotations

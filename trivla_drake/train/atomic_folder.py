@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from trivla_drake.data.durable import fsync_file
+from trivla_drake.data.durable import fsync_directory, fsync_file
 
 
 @contextmanager
@@ -28,7 +28,7 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
         yield tmp
         _fsync_tree(tmp)
         replace_folder(tmp, folder)
-        _fsync_directory(folder.parent)
+        fsync_directory(folder.parent)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -46,21 +46,13 @@ def replace_folder(new: Path, target: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
-def _fsync_directory(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _fsync_tree(directory: Path) -> None:
-    """Flushes every file under `directory`, then the folders themselves (so the names are on disk too)."""
+    """Flushes every file under `directory` and every folder's names, `directory`'s own included."""
     for path in directory.rglob("*"):
-        if path.is_file() and not path.is_symlink():
-            fsync_file(path)
-    for path in [*(p for p in directory.rglob("*") if p.is_dir() and not p.is_symlink()), directory]:
-        _fsync_directory(path)
+        if path.is_symlink():
+            continue
+        (fsync_directory if path.is_dir() else fsync_file)(path)
+    fsync_directory(directory)
 
 
 def ensure_cached_folder(folder: str | os.PathLike, settings: dict[str, Any], make: Callable[[], Path], *,
