@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.eval.episode import derive_seed, run_episode, shared_env
+from trivla_drake.eval.episode import derive_seed, hold_still, run_episode, shared_env
 from trivla_drake.eval.evaluate import _policy
 from trivla_drake.tasks.scene import BLOCK_HALF, fold_quarter_turn
 from trivla_drake.tasks.suite import TASKS
@@ -88,10 +88,7 @@ def audit_episode(task: str, seed: int, policy) -> dict:
     initial, params = seen["initial"], tuple(result.params)
     at_success = env.scene()
     row["strict_at_success"] = strict_success(task, params, initial, at_success)
-    hold = np.zeros(7)
-    hold[6] = env.last_action[6]  # the hand keeps its last gripper command (holding a lifted block, or letting go)
-    for _ in range(HOLD_STEPS):
-        env.step(hold, images=False)
+    hold_still(env, HOLD_STEPS)  # the hand keeps its last gripper command (holding a lifted block, or letting go)
     after = env.scene()
     row["success_after_hold"] = bool(TASKS[task].success(params, initial, after))
     row["strict_after_hold"] = strict_success(task, params, initial, after)

@@ -90,6 +90,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             prelude=args.prelude,
             home_first=args.home_first,
             stacked_picks=args.stacked_picks,
+            hold_check=args.hold_check,
         )
         if args.threads < 1:
             raise ValueError(f"--threads must be at least 1, got {args.threads}")
@@ -229,6 +230,11 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--stacked-picks", action="store_true",
                         help="every lift, place in bowl and stack episode starts with a stack and picks up its top "
                              "block, as a chain may ask (the single-task scenes have no stack); other tasks as usual")
+    parser.add_argument("--hold-check", type=float, default=None, metavar="SECONDS",
+                        help="after each success hold the hand still this long (the gripper keeping its last command) "
+                             "and ask the task's predicate again; the report adds the successes that lasted, and "
+                             "chains an Avg. Len of those (e.g. 0.5; default: none; successes still count when the "
+                             "predicate first holds, as in CALVIN)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

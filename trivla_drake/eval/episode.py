@@ -79,6 +79,9 @@ class EpisodeResult:
     trajectory: Trajectory | None = None
     # The tasks another policy completed first, unrecorded (`run_episode(prelude=...)`), in order.
     prelude: tuple[str, ...] = ()
+    # With a hold check (`run_episode(hold_check=...)`): whether the success still held after the hand was held
+    # still that long; None without a hold check or without a success.
+    lasted: bool | None = None
 
     def to_dict(self) -> dict:
         out = {
@@ -92,6 +95,8 @@ class EpisodeResult:
         }
         if self.prelude:
             out["prelude"] = list(self.prelude)
+        if self.lasted is not None:
+            out["lasted"] = self.lasted
         return out
 
 
@@ -103,14 +108,53 @@ class ChainResult:
     completed: int
     subtasks: list[EpisodeResult]
     reason: str = ""
+    # With a hold check: how many tasks in a row succeeded and still held after the hold (None without).
+    completed_lasting: int | None = None
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "seed": self.seed,
             "completed": self.completed,
             "reason": self.reason,
             "subtasks": [s.to_dict() for s in self.subtasks],
         }
+        if self.completed_lasting is not None:
+            out["completed_lasting"] = self.completed_lasting
+        return out
+
+
+# The longest hold check `evaluate --hold-check` takes [s].
+MAX_HOLD_CHECK_S = 10.0
+
+
+def check_hold_check(seconds: float | None, name: str = "hold_check") -> None:
+    """A hold check is None (off) or a finite time in (0, MAX_HOLD_CHECK_S] seconds."""
+    if seconds is None:
+        return
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds <= MAX_HOLD_CHECK_S:
+        raise ValueError(f"{name} must be a time in seconds above 0 and at most {MAX_HOLD_CHECK_S:g} (how long the "
+                         f"hand holds still before a success is asked again), got {seconds!r}")
+
+
+def hold_steps(env: TabletopEnv, seconds: float | None) -> int:
+    """The control steps of a hold check of `seconds` (0 without one; at least 1 with one)."""
+    check_hold_check(seconds)
+    return 0 if seconds is None else max(1, round(seconds * env.action_space.control_rate_hz))
+
+
+def hold_still(env: TabletopEnv, steps: int, *, obs: dict | None = None, recorder: _Recorder | None = None) -> dict | None:
+    """`steps` control steps of zero hand motion, the gripper keeping its last command (a lifted block stays in the
+    hand, a released one stays released); returns the last observation (`obs` after no step). The recorder, if any,
+    gets the frames of the hold, starting with `obs`, the observation before it (no trajectory rows: nothing the
+    policy did)."""
+    hold = np.zeros(7)
+    hold[6] = env.last_action[6]
+    images = recorder is not None and recorder.needs_images(env)
+    for _ in range(steps):
+        if recorder is not None:
+            recorder.add(obs, None)
+        obs = env.step(hold, images=images)
+    return obs
 
 
 class _Recorder:
@@ -162,9 +206,12 @@ def _run_subtask(
     max_steps: int,
     recorder: _Recorder,
     disturbance: DisturbanceState | None = None,
+    hold: int = 0,
 ) -> tuple[EpisodeResult, dict]:
     """Drive `policy` on one task from the env's current state until success or `max_steps`;
-    `disturbance` perturbs the applied actions (the recorded ones stay the policy's)."""
+    `disturbance` perturbs the applied actions (the recorded ones stay the policy's). With `hold` > 0 steps, a
+    success is followed by that many steps of the hand held still (`hold_still`) and the predicate is asked again
+    (`EpisodeResult.lasted`); the episode's `steps` are the policy's only."""
     task = get_task(instance.task)
     initial = env.scene()
     result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0)
@@ -190,6 +237,9 @@ def _run_subtask(
         step += 1
         if task.success(instance.params, initial, env.scene()):
             result.success, result.steps = True, step
+            if hold:
+                obs = hold_still(env, hold, obs=obs, recorder=recorder)
+                result.lasted = bool(task.success(instance.params, initial, env.scene()))
             return result, obs
     result.steps = step
     result.reason = f"timeout: no success within {max_steps} steps"
@@ -239,8 +289,13 @@ def run_episode(
     prelude_policy: Policy | None = None,
     prelude_draw=None,
     stacked_pick: bool = False,
+    hold_check: float | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
+
+    `hold_check` (seconds): at a success the hand is then held still that long, the gripper keeping its last
+    command, and the task's predicate asked again (`EpisodeResult.lasted`): a stacked block let go tilted, which the
+    predicate counts at the instant it holds, may have fallen off by then (results/predicate_audit/).
 
     `stacked_pick` (lift, place in bowl, stack): the scene starts with a stack and the block to pick up is on
     top of it (`sample_task_instance`), a grasp a chain may ask for and a single task otherwise never does.
@@ -267,6 +322,7 @@ def run_episode(
     if prelude and (prelude_policy is None or not prelude_policy.privileged):
         raise ValueError("prelude > 0 needs a privileged prelude_policy (the oracle) to complete the tasks before "
                          "the episode's")
+    check_hold_check(hold_check)
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
     env = shared_env(image_size, scenario)
@@ -292,7 +348,8 @@ def run_episode(
             if action_noise is not None:
                 disturbance = action_noise.start(np.random.default_rng(derive_seed(seed, "action_noise")))
             result, obs = _run_subtask(
-                env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance
+                env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance,
+                hold_steps(env, hold_check)
             )
             recorder.add(obs, None)
     except Exception as error:  # noqa: BLE001 - any failure is this episode's failure, the run goes on
@@ -319,16 +376,23 @@ def run_chain(
     video_path: str | Path | None = None,
     scenario: Scenario | None = None,
     max_steps: int | None = None,
+    hold_check: float | None = None,
 ) -> ChainResult:
     """A chain of `length` tasks from one initial state, stopping at the first failure; each task gets
-    `max_steps` control steps (None: its own budget), as single episodes do."""
+    `max_steps` control steps (None: its own budget), as single episodes do.
+
+    With `hold_check` (seconds) every success is followed by that hold (see `run_episode`) and the next task starts
+    after it; `completed` still counts the successes as the predicates first held (CALVIN's reading), and
+    `completed_lasting` the tasks in a row whose success also held after the hold."""
+    check_hold_check(hold_check)
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
     env = shared_env(image_size, scenario)
+    hold = hold_steps(env, hold_check)
     rng = np.random.default_rng(seed)
     spec = sample_chain_scene(rng, env.layout())
     recorder = _Recorder(False, video_path, env.action_space.control_rate_hz)
-    result = ChainResult(seed, 0, [])
+    result = ChainResult(seed, 0, [], completed_lasting=None if hold_check is None else 0)
     used: set[str] = set()
     try:
         obs = env.reset(spec)
@@ -340,12 +404,14 @@ def run_chain(
             used.add(instance.task)
             sub, obs = _run_subtask(
                 env, obs, policy, instance, int(rng.integers(2**31)), max_steps or get_task(instance.task).max_steps,
-                recorder
+                recorder, hold=hold
             )
             result.subtasks.append(sub)
             if not sub.success:
                 result.reason = f"{instance.task}: {sub.reason}"
                 break
+            if sub.lasted and result.completed_lasting == result.completed:
+                result.completed_lasting += 1
             result.completed += 1
         recorder.add(obs, None)
     except Exception as error:  # noqa: BLE001 - as for episodes: a failure with its reason

@@ -71,6 +71,10 @@ class EvalConfig:
     # Every lift, place in bowl and stack episode starts with a stack, its block to pick up on top (a grasp chains
     # ask for and the single tasks' scenes never have, results/chain_lifts/); the other tasks are unchanged.
     stacked_picks: bool = False
+    # Seconds the hand is held still after each success (the gripper keeping its last command) before the task's
+    # predicate is asked again; the report then also counts the successes that lasted (None: no hold check).
+    # Successes are still counted when the predicate first holds, as CALVIN counts them (results/predicate_audit/).
+    hold_check: float | None = None
 
     def validate(self) -> None:
         if self.episodes < 0 or self.chains < 0:
@@ -101,6 +105,9 @@ class EvalConfig:
             if self.prelude:
                 raise ValueError("--stacked-picks and --prelude cannot be combined: a prelude redraws the block to "
                                  "pick up in the scene it leaves")
+        from trivla_drake.eval.episode import check_hold_check
+
+        check_hold_check(self.hold_check, "--hold-check")
         if self.home_first and self.policy == "oracle":
             raise ValueError("--home-first applies to learned policies, not to --policy oracle (it plans from "
                              "wherever the hand is)")
@@ -151,6 +158,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 prelude=config.prelude,
                 prelude_policy=_policy("oracle") if config.prelude else None,
                 stacked_pick=config.stacked_picks and name in STACKED_PICK_TASKS,
+                hold_check=config.hold_check,
             )
             if not (config.prelude and result.reason.startswith("prelude")):
                 break
@@ -162,6 +170,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
         image_size=config.image_size,
         video_path=video,
         max_steps=config.max_steps,
+        hold_check=config.hold_check,
     ).to_dict()
 
 
@@ -213,6 +222,7 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
             "stderr": math.sqrt(rate * (1 - rate) / n) if n else 0.0,
             "episodes": n,
             "successes": successes,
+            **(_lasting_counts(mine) if config.hold_check is not None else {}),
             "failures": [
                 {"seed": e["seed"], "instruction": e["instruction"], "reason": e["reason"],
                  **({"prelude": e["prelude"]} if e.get("prelude") else {})}
@@ -228,6 +238,8 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         "average_success": (sum(t["success_rate"] for t in tasks.values()) / len(tasks)) if tasks else None,
         "tasks": tasks,
     }
+    if config.hold_check is not None and tasks:
+        report["average_lasting_success"] = sum(t["lasting_rate"] for t in tasks.values()) / len(tasks)
     if config.prelude and episodes:
         report["after_prelude_task"] = success_after_prelude_task(episodes)
     if chains:
@@ -236,14 +248,30 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
     return report
 
 
+def _lasting_counts(episodes: list[dict]) -> dict:
+    """A task row's hold-check figures: successes that still held after the hold, their rate and its standard error."""
+    n = len(episodes)
+    lasting = sum(bool(e.get("lasted")) for e in episodes)
+    rate = lasting / n if n else 0.0
+    return {"lasting_successes": lasting, "lasting_rate": rate,
+            "lasting_stderr": math.sqrt(rate * (1 - rate) / n) if n else 0.0}
+
+
+def _mean_and_stderr(values: list[int]) -> tuple[float, float]:
+    """The mean and its standard error (sample variance, ddof 1; 0 for one value)."""
+    n = len(values)
+    mean = sum(values) / n
+    var = sum((v - mean) ** 2 for v in values) / (n - 1) if n > 1 else 0.0
+    return mean, math.sqrt(var / n)
+
+
 def summarize_chains(chains: list[dict]) -> dict:
     """Avg. Len with its standard error and the `chains` summary of chain results (each a dict with `seed`,
     `completed`, `reason` and `subtasks`, a list of dicts with `task`), as `evaluate --chains` and
     `demo --chains` report them."""
     completed = [c["completed"] for c in chains]
     n = len(completed)
-    mean = sum(completed) / n
-    var = sum((c - mean) ** 2 for c in completed) / (n - 1) if n > 1 else 0.0  # sample variance (ddof 1)
+    mean, stderr = _mean_and_stderr(completed)
     summary = {
         "count": n,
         # CALVIN's table: the fraction of chains that completed at least k tasks, k = 1..5.
@@ -257,7 +285,12 @@ def summarize_chains(chains: list[dict]) -> dict:
         "completed": completed,
     }
     summary["by_position"] = chain_success_by_position(summary["tasks"], completed)
-    return {"chain_avg_len": mean, "chain_avg_len_stderr": math.sqrt(var / n), "chains": summary}
+    out = {"chain_avg_len": mean, "chain_avg_len_stderr": stderr, "chains": summary}
+    if all("completed_lasting" in c for c in chains):  # chains run with a hold check
+        summary["completed_lasting"] = [c["completed_lasting"] for c in chains]
+        out["chain_avg_len_lasting"], out["chain_avg_len_lasting_stderr"] = _mean_and_stderr(
+            summary["completed_lasting"])
+    return out
 
 
 def chain_success_by_position(tasks: list[list[str]], completed: list[int]) -> list[dict]:
@@ -310,6 +343,12 @@ def format_chain_markdown(report: dict) -> list[str]:
         + f" | {report['chain_avg_len']:.2f}"
         + (f" ± {report['chain_avg_len_stderr']:.2f} |" if c["count"] > 1 else " (one chain) |"),
     ]
+    if "chain_avg_len_lasting" in report:
+        hold = report.get("config", {}).get("hold_check")
+        lines += ["", f"Avg. Len counting only successes that still held after the hand was held still"
+                  + (f" {hold:g} s" if hold is not None else "")
+                  + f": {report['chain_avg_len_lasting']:.2f}"
+                  + (f" ± {report['chain_avg_len_lasting_stderr']:.2f}" if c["count"] > 1 else "")]
     if "by_position" in c:
         lines += [
             "",
@@ -326,7 +365,16 @@ def format_markdown(report: dict) -> str:
         f"policy: {report['policy']}, seed {report['seed']}"
         + (", held-out paraphrases" if report["paraphrases"] else ""),
     ]
-    if report["tasks"]:
+    if report["tasks"] and "average_lasting_success" in report:
+        hold = f"{report['config']['hold_check']:g} s"
+        lines += ["", f"| task | success | std. error | still a success after {hold} held | std. error | episodes |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for name, row in report["tasks"].items():
+            lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['lasting_rate']:.3f} | "
+                         f"{row['lasting_stderr']:.3f} | {row['episodes']} |")
+        lines.append(f"| **average** | **{report['average_success']:.3f}** | | "
+                     f"**{report['average_lasting_success']:.3f}** | | |")
+    elif report["tasks"]:
         lines += ["", "| task | success | std. error | episodes |", "| --- | --- | --- | --- |"]
         for name, row in report["tasks"].items():
             lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['episodes']} |")
