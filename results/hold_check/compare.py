@@ -41,9 +41,9 @@ def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chai
     compare = _demo_chains_compare()
     mean_stderr = compare.mean_stderr
 
-    def cell(values):
+    def cell(values, signed=False):
         mean, stderr = mean_stderr(values)
-        return f"{mean:.2f} ± {stderr:.2f}"
+        return f"{mean:+.2f} ± {stderr:.2f}" if signed else f"{mean:.2f} ± {stderr:.2f}"
 
     lines = ["| seeds | chains | no hold (`../demo_chains/`) | with the hold, as first held | with the hold, lasting | "
              "paired: hold - no hold | paired: lasting - first held | chains shortened by the hold check |",
@@ -70,7 +70,7 @@ def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chai
 def _row(label, plain, first, lasting, cell) -> str:
     shortened = sum(a < b for a, b in zip(lasting, first))
     return (f"| {label} | {len(plain)} | {cell(plain)} | {cell(first)} | {cell(lasting)} | "
-            f"{cell([a - b for a, b in zip(first, plain)])} | {cell([a - b for a, b in zip(lasting, first)])} | "
+            f"{cell([a - b for a, b in zip(first, plain)], True)} | {cell([a - b for a, b in zip(lasting, first)], True)} | "
             f"{shortened} |")
 
 
