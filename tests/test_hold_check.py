@@ -135,3 +135,60 @@ def test_the_chain_comparison_pairs_each_chain(tmp_path, results_script):
     # A report from before the summary listed each chain's lasting count is left out, not misread.
     (hold / "chains20_hold0.5_seed1003.json").write_text(json.dumps({"chains": {"completed": [2, 1], "tasks": tasks}}))
     assert "1003" not in script.main(hold, plain)
+
+
+def test_a_simulation_failure_in_the_hold_keeps_the_success(monkeypatch):
+    """The success was counted when the predicate first held; a simulation failing during the hold makes it one that
+    did not last, and ends a chain after counting it."""
+    _ScriptedPredicate(monkeypatch, [True] * 10)
+    real_step = episode_module.TabletopEnv.step
+    policy_steps = {"left": 1}
+
+    def step(env, action, *, images=True):
+        if policy_steps["left"] == 0:  # every step after the policy's first is the hold's
+            raise episode_module.SimulationError("injected in the hold")
+        policy_steps["left"] -= 1
+        return real_step(env, action, images=images)
+
+    monkeypatch.setattr(episode_module.TabletopEnv, "step", step)
+    result = run_episode("turn_on_light", 3, RandomPolicy(), hold_check=0.5)
+    assert result.success and result.lasted is False and result.reason == "hold check: injected in the hold"
+    policy_steps["left"] = 1
+    chain = run_chain(derive_seed(1000, "chain", 0), RandomPolicy(), hold_check=0.5)
+    assert (chain.completed, chain.completed_lasting, len(chain.subtasks)) == (1, 0, 1)
+    assert chain.reason.endswith("hold check: injected in the hold")
+
+
+def test_the_hold_adds_video_frames_and_no_trajectory_rows(monkeypatch):
+    frames = {}
+
+    def finish(recorder):  # keeps the frames instead of writing the video
+        frames[len(frames)] = list(recorder.frames or [])
+
+    monkeypatch.setattr(episode_module._Recorder, "finish", finish)
+    _ScriptedPredicate(monkeypatch, [True])
+    held = run_episode("turn_on_light", 5, RandomPolicy(), hold_check=0.25, keep_trajectory=True, video_path="unused.mp4")
+    plain = run_episode("turn_on_light", 5, RandomPolicy(), keep_trajectory=True, video_path="unused.mp4")
+    assert held.steps == plain.steps == 1
+    assert len(held.trajectory) == len(plain.trajectory) == 1  # the policy's one step, the hold's none
+    assert len(frames[1]) == 2 and len(frames[0]) == 2 + 9  # before and after the step; the hold's 9 steps between
+    assert (frames[0][0] == frames[1][0]).all()
+
+
+def test_the_audit_comparison_names_episodes_the_audit_lacks(tmp_path, results_script):
+    script = results_script("hold_check/compare.py")
+    from trivla_drake.eval.episode import derive_seed
+
+    audit, hold = tmp_path / "audit", tmp_path / "hold"
+    audit.mkdir()
+    hold.mkdir()
+    rows = [{"task": "stack_block", "seed": derive_seed(1000, "stack_block", i), "success": True,
+             "success_after_hold": i == 0} for i in range(2)]
+    (audit / "shipped_seeds1000-1017.json").write_text(json.dumps({"rows": rows}))
+    tasks = {"stack_block": {"successes": 2, "lasting_successes": 1},
+             "lift_block": {"successes": 1, "lasting_successes": 1}}
+    (hold / "tasks_hold0.5_seed1000.json").write_text(json.dumps({"seed": 1000, "episodes_per_task": 2,
+                                                                   "tasks": tasks}))
+    table = script.tasks_against_audit(hold, audit)
+    assert "| 1000 | stack_block | 2 / 2 | 1 / 1 |" in table
+    assert "| 1000 | lift_block | 1 / not in the audit | 1 / not in the audit |" in table

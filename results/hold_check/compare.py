@@ -90,6 +90,8 @@ def tasks_against_audit(hold_folder: Path = HERE, audit_folder: Path = HERE.pare
         for task, row in report["tasks"].items():
             rows = [audit.get((task, derive_seed(base, task, i))) for i in range(episodes)]
             if None in rows:
+                lines.append(f"| {base} | {task} | {row['successes']} / not in the audit | "
+                             f"{row['lasting_successes']} / not in the audit |")
                 continue
             won = sum(r["success"] for r in rows)
             lasted = sum(r.get("success_after_hold", False) for r in rows)

@@ -234,7 +234,8 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                         help="after each success hold the hand still this long (the gripper keeping its last command) "
                              "and ask the task's predicate again; the report adds the successes that lasted, and "
                              "chains an Avg. Len of those (e.g. 0.5; default: none; successes still count when the "
-                             "predicate first holds, as in CALVIN)")
+                             "predicate first holds, as in CALVIN; a chain's next task starts after the hold, so the "
+                             "chains themselves differ from runs without it)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(run=run_evaluate)

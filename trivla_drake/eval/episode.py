@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from trivla_drake.eval.action_noise import Disturbance, DisturbanceState
-from trivla_drake.eval.env import TabletopEnv
+from trivla_drake.eval.env import SimulationError, TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
@@ -149,6 +149,8 @@ def hold_still(env: TabletopEnv, steps: int, *, obs: dict | None = None, recorde
     policy did)."""
     hold = np.zeros(7)
     hold[6] = env.last_action[6]
+    if recorder is not None and obs is None:
+        raise ValueError("hold_still: a recorder needs obs, the observation before the hold")
     images = recorder is not None and recorder.needs_images(env)
     for _ in range(steps):
         if recorder is not None:
@@ -237,9 +239,13 @@ def _run_subtask(
         step += 1
         if task.success(instance.params, initial, env.scene()):
             result.success, result.steps = True, step
-            if hold:
-                obs = hold_still(env, hold, obs=obs, recorder=recorder)
-                result.lasted = bool(task.success(instance.params, initial, env.scene()))
+            if hold > 0:
+                try:
+                    obs = hold_still(env, hold, obs=obs, recorder=recorder)
+                    result.lasted = bool(task.success(instance.params, initial, env.scene()))
+                except SimulationError as error:  # the success stands; it did not last, and nothing can follow
+                    result.lasted = False
+                    result.reason = f"hold check: {error}"
             return result, obs
     result.steps = step
     result.reason = f"timeout: no success within {max_steps} steps"
@@ -382,8 +388,8 @@ def run_chain(
     `max_steps` control steps (None: its own budget), as single episodes do.
 
     With `hold_check` (seconds) every success is followed by that hold (see `run_episode`) and the next task starts
-    after it; `completed` still counts the successes as the predicates first held (CALVIN's reading), and
-    `completed_lasting` the tasks in a row whose success also held after the hold."""
+    after it, so the chain differs from one without holds; `completed` counts its successes as the predicates first
+    held (CALVIN's reading), and `completed_lasting` the tasks in a row whose success also held after the hold."""
     check_hold_check(hold_check)
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
@@ -413,6 +419,9 @@ def run_chain(
             if sub.lasted and result.completed_lasting == result.completed:
                 result.completed_lasting += 1
             result.completed += 1
+            if sub.reason:  # a success whose hold check failed in the simulation: the chain cannot go on
+                result.reason = f"{instance.task}: {sub.reason}"
+                break
         recorder.add(obs, None)
     except Exception as error:  # noqa: BLE001 - as for episodes: a failure with its reason
         _log.warning("chain seed %d failed: %s", seed, error)

@@ -74,6 +74,8 @@ class EvalConfig:
     # Seconds the hand is held still after each success (the gripper keeping its last command) before the task's
     # predicate is asked again; the report then also counts the successes that lasted (None: no hold check).
     # Successes are still counted when the predicate first holds, as CALVIN counts them (results/predicate_audit/).
+    # Single tasks are then the runs without the hold; in chains the next task starts after the hold, so the chains
+    # themselves differ (results/hold_check/).
     hold_check: float | None = None
 
     def validate(self) -> None:
@@ -345,9 +347,11 @@ def format_chain_markdown(report: dict) -> list[str]:
     ]
     if "chain_avg_len_lasting" in report:
         hold = report.get("config", {}).get("hold_check")
-        lines += ["", f"Avg. Len counting only successes that still held after the hand was held still"
-                  + (f" {hold:g} s" if hold is not None else "")
-                  + f": {report['chain_avg_len_lasting']:.2f}"
+        held = f" {hold:g} s" if hold is not None else ""
+        lines += ["", f"Every success was followed by a hold of the hand{held}, and the next task started after it: "
+                  "the Avg. Len above counts the successes as the predicates first held, in these chains.",
+                  f"Avg. Len counting only successes that still held after the hand was held still{held}: "
+                  f"{report['chain_avg_len_lasting']:.2f}"
                   + (f" ± {report['chain_avg_len_lasting_stderr']:.2f}" if c["count"] > 1 else "")]
     if "by_position" in c:
         lines += [
