@@ -130,8 +130,9 @@ def test_the_chain_comparison_pairs_each_chain(tmp_path, results_script):
     (hold / "chains20_hold0.5_seed1003.json").write_text(json.dumps(
         {"chains": {"completed": [2, 1], "completed_lasting": [0, 1], "tasks": tasks}}))
     table = script.main(hold, plain)
-    assert "| 1003 | 2 | 1.00 ± 0.00 | 1.50 ± 0.50 | 0.50 ± 0.50 | +0.50 ± 0.50 | -1.00 ± 1.00 | 1 |" in table
+    assert "| 1003 | 2 | 1.00 ± 0.00 | 1.50 ± 0.50 | 0.50 ± 0.50 | +0.50 ± 0.50 | 1 / 0 (p 1.00) | -1.00 ± 1.00 | 1 |" in table
     assert "first success that did not last, per chain: stack_block 1" in table
+    assert script.sign_test(32, 17) == pytest.approx(0.0444, abs=1e-4) and script.sign_test(0, 0) == 1.0
     # A report from before the summary listed each chain's lasting count is left out, not misread.
     (hold / "chains20_hold0.5_seed1003.json").write_text(json.dumps({"chains": {"completed": [2, 1], "tasks": tasks}}))
     assert "1003" not in script.main(hold, plain)

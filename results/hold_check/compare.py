@@ -1,5 +1,6 @@
-"""The 80 chains of `../demo_chains/` (harness, no hold) against the same chains run with `evaluate --hold-check 0.5`,
-counted as the predicates first hold and counting only successes that lasted the hold.
+"""Chains run without a hold (`../demo_chains/`'s seeds 1003-1006, this folder's 1007-1010) against the same chains
+run with `evaluate --hold-check 0.5`, counted as the predicates first hold and counting only successes that lasted
+the hold.
 
     python results/hold_check/compare.py > results/hold_check/compare.md
 """
@@ -8,11 +9,12 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-SEEDS = (1003, 1004, 1005, 1006)
+SEEDS = tuple(range(1003, 1011))
 
 
 def _demo_chains_compare():
@@ -45,13 +47,15 @@ def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chai
         mean, stderr = mean_stderr(values)
         return f"{mean:+.2f} ± {stderr:.2f}" if signed else f"{mean:.2f} ± {stderr:.2f}"
 
-    lines = ["| seeds | chains | no hold (`../demo_chains/`) | with the hold, as first held | with the hold, lasting | "
-             "paired: hold - no hold | paired: lasting - first held | chains shortened by the hold check |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| seeds | chains | no hold | with the hold, as first held | with the hold, lasting | "
+             "paired: hold - no hold | longer / shorter with the hold (sign test p) | paired: lasting - first held | "
+             "chains shortened by the hold check |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     pooled: dict[str, list[int]] = {"plain": [], "first": [], "lasting": []}
     broke: list[str] = []
     for seed in SEEDS:
-        plain, hold = compare.load(plain_folder, "harness", seed), load_hold(hold_folder, seed)
+        plain = compare.load(plain_folder, "harness", seed) or compare.load(hold_folder, "harness", seed)
+        hold = load_hold(hold_folder, seed)
         if plain is None or hold is None:
             continue
         first, lasting, broken = hold
@@ -67,11 +71,22 @@ def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chai
     return "\n".join(lines)
 
 
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test (ties left out): the probability of a split at least this uneven by chance."""
+    n = wins + losses
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(wins, losses) + 1)) / 2**n
+    return min(1.0, 2 * tail)
+
+
 def _row(label, plain, first, lasting, cell) -> str:
     shortened = sum(a < b for a, b in zip(lasting, first))
+    longer = sum(a > b for a, b in zip(first, plain))
+    shorter = sum(a < b for a, b in zip(first, plain))
     return (f"| {label} | {len(plain)} | {cell(plain)} | {cell(first)} | {cell(lasting)} | "
-            f"{cell([a - b for a, b in zip(first, plain)], True)} | {cell([a - b for a, b in zip(lasting, first)], True)} | "
-            f"{shortened} |")
+            f"{cell([a - b for a, b in zip(first, plain)], True)} | {longer} / {shorter} (p {sign_test(longer, shorter):.2f}) | "
+            f"{cell([a - b for a, b in zip(lasting, first)], True)} | {shortened} |")
 
 
 def tasks_against_audit(hold_folder: Path = HERE, audit_folder: Path = HERE.parent / "predicate_audit") -> str:
