@@ -348,7 +348,7 @@ def format_chain_markdown(report: dict) -> list[str]:
     if "chain_avg_len_lasting" in report:
         hold = report.get("config", {}).get("hold_check")
         held = f" {hold:g} s" if hold is not None else ""
-        lines += ["", f"Every success was followed by a hold of the hand{held}, and the next task started after it: "
+        lines += ["", f"Every success was followed by a{held} hold of the hand, and the next task started after it: "
                   "the Avg. Len above counts the successes as the predicates first held, in these chains.",
                   f"Avg. Len counting only successes that still held after the hand was held still{held}: "
                   f"{report['chain_avg_len_lasting']:.2f}"
