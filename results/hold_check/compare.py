@@ -7,9 +7,9 @@ the hold.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -17,11 +17,19 @@ HERE = Path(__file__).parent
 SEEDS = tuple(range(1003, 1011))
 
 
-def _demo_chains_compare():
-    spec = importlib.util.spec_from_file_location("demo_chains_compare", HERE.parent / "demo_chains" / "compare.py")
+@functools.lru_cache(maxsize=None)
+def _sibling(relative: str):
+    """Another results script, loaded from its file (they are run as files, not imported as a package)."""
+    path = HERE.parent / relative
+    spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test over the chains that differ: `../follow_control/compare_seeds.py`'s McNemar p."""
+    return _sibling("follow_control/compare_seeds.py").mcnemar_p(wins, losses)
 
 
 def load_hold(folder: Path, seed: int) -> tuple[list[int], list[int], list[str]] | None:
@@ -40,7 +48,7 @@ def load_hold(folder: Path, seed: int) -> tuple[list[int], list[int], list[str]]
 
 
 def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chains") -> str:
-    compare = _demo_chains_compare()
+    compare = _sibling("demo_chains/compare.py")
     mean_stderr = compare.mean_stderr
 
     def cell(values, signed=False):
@@ -69,15 +77,6 @@ def main(hold_folder: Path = HERE, plain_folder: Path = HERE.parent / "demo_chai
         lines += ["", "The first success that did not last, per chain: "
                   + (", ".join(f"{task} {n}" for task, n in counts.items()) or "none")]
     return "\n".join(lines)
-
-
-def sign_test(wins: int, losses: int) -> float:
-    """Exact two-sided sign test (ties left out): the probability of a split at least this uneven by chance."""
-    n = wins + losses
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, k) for k in range(min(wins, losses) + 1)) / 2**n
-    return min(1.0, 2 * tail)
 
 
 def _row(label, plain, first, lasting, cell) -> str:

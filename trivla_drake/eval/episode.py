@@ -137,8 +137,7 @@ def check_hold_check(seconds: float | None, name: str = "hold_check") -> None:
 
 
 def hold_steps(env: TabletopEnv, seconds: float | None) -> int:
-    """The control steps of a hold check of `seconds` (0 without one; at least 1 with one)."""
-    check_hold_check(seconds)
+    """The control steps of a hold check of `seconds`, checked by the caller (0 without one; at least 1 with one)."""
     return 0 if seconds is None else max(1, round(seconds * env.action_space.control_rate_hz))
 
 

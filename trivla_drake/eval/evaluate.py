@@ -218,10 +218,10 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         mine = [e for e in episodes if e["task"] == name]
         n = len(mine)
         successes = sum(e["success"] for e in mine)
-        rate = successes / n if n else 0.0
+        rate, stderr = _rate_and_stderr(successes, n)
         tasks[name] = {
             "success_rate": rate,
-            "stderr": math.sqrt(rate * (1 - rate) / n) if n else 0.0,
+            "stderr": stderr,
             "episodes": n,
             "successes": successes,
             **(_lasting_counts(mine) if config.hold_check is not None else {}),
@@ -250,13 +250,17 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
     return report
 
 
+def _rate_and_stderr(count: int, n: int) -> tuple[float, float]:
+    """A success rate over n episodes and its binomial standard error (0, 0 for no episodes)."""
+    rate = count / n if n else 0.0
+    return rate, math.sqrt(rate * (1 - rate) / n) if n else 0.0
+
+
 def _lasting_counts(episodes: list[dict]) -> dict:
     """A task row's hold-check figures: successes that still held after the hold, their rate and its standard error."""
-    n = len(episodes)
     lasting = sum(bool(e.get("lasted")) for e in episodes)
-    rate = lasting / n if n else 0.0
-    return {"lasting_successes": lasting, "lasting_rate": rate,
-            "lasting_stderr": math.sqrt(rate * (1 - rate) / n) if n else 0.0}
+    rate, stderr = _rate_and_stderr(lasting, len(episodes))
+    return {"lasting_successes": lasting, "lasting_rate": rate, "lasting_stderr": stderr}
 
 
 def _mean_and_stderr(values: list[int]) -> tuple[float, float]:
@@ -369,20 +373,15 @@ def format_markdown(report: dict) -> str:
         f"policy: {report['policy']}, seed {report['seed']}"
         + (", held-out paraphrases" if report["paraphrases"] else ""),
     ]
-    if report["tasks"] and "average_lasting_success" in report:
-        hold = f"{report['config']['hold_check']:g} s"
-        lines += ["", f"| task | success | std. error | still a success after {hold} held | std. error | episodes |",
-                  "| --- | --- | --- | --- | --- | --- |"]
+    if report["tasks"]:
+        lasting = "average_lasting_success" in report  # a run with a hold check: two more columns
+        held = f" still a success after {report['config']['hold_check']:g} s held | std. error |" if lasting else ""
+        lines += ["", f"| task | success | std. error |{held} episodes |", "| --- |" + " --- |" * (5 if lasting else 3)]
         for name, row in report["tasks"].items():
-            lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['lasting_rate']:.3f} | "
-                         f"{row['lasting_stderr']:.3f} | {row['episodes']} |")
-        lines.append(f"| **average** | **{report['average_success']:.3f}** | | "
-                     f"**{report['average_lasting_success']:.3f}** | | |")
-    elif report["tasks"]:
-        lines += ["", "| task | success | std. error | episodes |", "| --- | --- | --- | --- |"]
-        for name, row in report["tasks"].items():
-            lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} | {row['episodes']} |")
-        lines.append(f"| **average** | **{report['average_success']:.3f}** | | |")
+            cells = f" {row['lasting_rate']:.3f} | {row['lasting_stderr']:.3f} |" if lasting else ""
+            lines.append(f"| {name} | {row['success_rate']:.3f} | {row['stderr']:.3f} |{cells} {row['episodes']} |")
+        cells = f" **{report['average_lasting_success']:.3f}** | |" if lasting else ""
+        lines.append(f"| **average** | **{report['average_success']:.3f}** | |{cells} |")
     lines += format_chain_markdown(report)
     if report.get("after_prelude_task"):
         rows = report["after_prelude_task"]
