@@ -91,3 +91,32 @@ def test_existing_runs_need_resume_and_the_same_settings(data, tmp_path):
         **{**_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).to_dict(), "steps": 8}))
     assert more["resumed_from_step"] == 6 and more["steps"] == 8
     assert ckpt.read_step(tmp_path / "run" / "final") == 8
+
+
+def test_a_truncated_newest_checkpoint_resumes_from_the_newest_intact_one_and_is_kept(data, tmp_path, capsys):
+    reference = train(_config("policy", tmp_path / "ref", data))
+    with pytest.raises(Killed):
+        train(_config("policy", tmp_path / "run", data), step_callback=_kill_at(5))  # checkpoints: steps 2, 4
+    newest = tmp_path / "run" / "checkpoints" / ckpt.step_dir_name(4)
+    state = newest / ckpt.STATE_FILE
+    truncated = state.read_bytes()[: state.stat().st_size // 2]
+    state.write_bytes(truncated)
+    capsys.readouterr()
+    resumed = train(_config("policy", tmp_path / "run", data, resume=True))
+    assert resumed["resumed_from_step"] == 2
+    assert resumed["weights_sha256_per_rank"] == reference["weights_sha256_per_rank"]
+    warning = capsys.readouterr().err
+    assert f"skipping checkpoint {newest}" in warning and "training_state.pt is truncated or corrupt" in warning
+    kept = newest.with_name(newest.name + ".unreadable")  # never deleted, nor replaced by the resumed run's step 4
+    assert (kept / ckpt.STATE_FILE).read_bytes() == truncated
+    assert ckpt.read_step(ckpt.latest_checkpoint(tmp_path / "run")) == 6
+
+
+def test_resume_with_no_intact_checkpoint_is_a_clear_error(data, tmp_path):
+    with pytest.raises(Killed):
+        train(_config("policy", tmp_path / "run", data), step_callback=_kill_at(3))  # one checkpoint: step 2
+    only = tmp_path / "run" / "checkpoints" / ckpt.step_dir_name(2)
+    (only / ckpt.STATE_FILE).write_bytes(b"")
+    with pytest.raises(ValueError, match=rf"no checkpoint of it is intact \({only}: .*training_state.pt"):
+        train(_config("policy", tmp_path / "run", data, resume=True))
+    assert (only / ckpt.STATE_FILE).is_file()  # left where it was

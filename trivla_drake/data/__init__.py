@@ -3,7 +3,8 @@
 No pydrake here: pyarrow for parquet, OpenCV for mp4.
 """
 
+from trivla_drake.data.checksums import DatasetCorruptError
 from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, NotADatasetError
 from trivla_drake.data.samples import TrainingSamples
 
-__all__ = ["LeRobotReader", "LeRobotWriter", "NotADatasetError", "TrainingSamples"]
+__all__ = ["DatasetCorruptError", "LeRobotReader", "LeRobotWriter", "NotADatasetError", "TrainingSamples"]

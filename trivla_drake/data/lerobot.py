@@ -12,8 +12,12 @@ the format allows, so that every episode is committed on its own):
                                                      episode_index, index, task_index, features
     videos/<camera key>/chunk-XXX/file-XXX.mp4       one video per camera and episode
 
+    meta/checksums.json                              sha256 of every data and video file (data/checksums.py;
+                                                     not LeRobot's, which ignores it)
+
 Atomicity: an episode's videos, data and (new) task rows are written first, each through a temporary
-file renamed into place; its `meta/episodes` file is written last and is the commit. A process killed
+file renamed into place, then meta/checksums.json with their checksums added; its `meta/episodes` file
+is written last and is the commit. A process killed
 at any moment leaves every committed episode readable; `LeRobotWriter` reopens the folder, ignores
 anything of an uncommitted episode (it is overwritten) and rebuilds info.json and stats.json from
 the committed episodes' metadata.
@@ -22,6 +26,7 @@ the committed episodes' metadata.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import shutil
@@ -32,7 +37,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from trivla_drake.data.checksums import RECORD_COMMAND, check_file, file_sha256, read_checksums, write_checksums
 from trivla_drake.data.durable import atomic_write_bytes, fsync_file
+
+_log = logging.getLogger(__name__)
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -104,6 +112,19 @@ def _atomic_write_table(path: Path, table: pa.Table) -> None:
     pq.write_table(table, tmp)
     fsync_file(tmp)  # meta/episodes commits an episode: never an empty file under its name
     os.replace(tmp, path)
+
+
+def _episode_files(row: dict, data_path: str, video_path: str | None, video_keys: list[str]) -> list[str]:
+    """The data and video files (paths relative to the dataset folder) holding one episode's frames."""
+    try:
+        files = [data_path.format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])]
+        for key in video_keys:
+            files.append(video_path.format(video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
+                                           file_index=row[f"videos/{key}/file_index"]))
+    except KeyError as error:
+        raise NotADatasetError(f"the meta/episodes row of episode {row.get('episode_index')} has no column {error} "
+                               "that meta/info.json's features call for: an edited or damaged dataset") from error
+    return files
 
 
 def _chunk_file(episode_index: int) -> dict[str, int]:
@@ -257,6 +278,8 @@ class LeRobotWriter:
             self.root.mkdir(parents=True, exist_ok=True)
             self._episodes: list[dict] = []
             self._tasks: list[str] = []
+            self._checksums: dict[str, str] = {}
+            write_checksums(self.root, self._checksums)
             self._write_info()
 
     def _open_existing(self) -> None:
@@ -285,7 +308,19 @@ class LeRobotWriter:
             for task in row["tasks"]:
                 if task not in self._tasks:
                     self._tasks.append(task)
+        committed = [f for row in self._episodes for f in self._files_of(row)]
+        recorded = read_checksums(self.root)
+        if recorded is None:  # written before checksums were recorded: its files are taken as they are now
+            _log.warning("%s has no checksums (written before they were recorded): recording its %d files as they "
+                         "are now", self.root, len(committed))
+            recorded = {f: file_sha256(self.root / f) for f in committed}
+        # An uncommitted episode's entries go: its files are written again.
+        self._checksums = {f: recorded[f] for f in committed if f in recorded}
+        write_checksums(self.root, self._checksums)
         self._write_info()
+
+    def _files_of(self, row: dict) -> list[str]:
+        return _episode_files(row, DATA_PATH, VIDEO_PATH, self.video_keys)
 
     @property
     def num_episodes(self) -> int:
@@ -397,6 +432,9 @@ class LeRobotWriter:
         row["meta/episodes/file_index"] = where["file_index"]
         for key, value in (extra or {}).items():
             row[key] = value
+        for name in self._files_of(row):  # recorded before the commit: a committed episode's files always are
+            self._checksums[name] = file_sha256(self.root / name)
+        write_checksums(self.root, self._checksums)
         # The commit: from here on the episode is part of the dataset.
         _atomic_write_table(self.root / EPISODES_PATH.format(**where), _typed_row_table(row))
         self._episodes.append(row)
@@ -459,6 +497,32 @@ class LeRobotReader:
         stats_path = self.root / STATS_PATH
         self.stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
         self.camera_keys = [k for k, v in self.features.items() if v["dtype"] == "video"]
+        self.checksums = read_checksums(self.root)  # None: written before checksums were recorded
+        self._digests: dict[int, dict[str, str]] = {}
+
+    def episode_files(self, episode_index: int) -> list[str]:
+        """The data and video files (paths relative to the folder) holding one episode."""
+        return _episode_files(self.episodes[episode_index], self.data_path, self.video_path, self.camera_keys)
+
+    def episode_digests(self, episode_index: int) -> dict[str, str]:
+        """sha256 of each of the episode's files (`episode_files`), checked against meta/checksums.json:
+        DatasetCorruptError naming a file that is missing or changed since it was written. A dataset written
+        before checksums were recorded is hashed unchecked, with a one-line warning (once)."""
+        if episode_index not in self._digests:
+            files = self.episode_files(episode_index)
+            if self.checksums is None:
+                if not self._digests:
+                    _log.warning("dataset %s records no checksums (written before they were): its files cannot be "
+                                 "checked for corruption; `%s %s` records them", self.root, RECORD_COMMAND, self.root)
+                self._digests[episode_index] = {f: file_sha256(self.root / f) for f in files}
+            else:
+                self._digests[episode_index] = {f: check_file(self.root, f, self.checksums) for f in files}
+        return self._digests[episode_index]
+
+    def verify_files(self, episodes: list[int] | None = None) -> None:
+        """Checks the files of `episodes` (all: None) against their recorded checksums (`episode_digests`)."""
+        for episode in range(self.num_episodes) if episodes is None else episodes:
+            self.episode_digests(episode)
 
     @property
     def num_episodes(self) -> int:

@@ -25,15 +25,18 @@ def check_model_choice(checkpoint, preset) -> None:
 
 def load_model(checkpoint: str | Path | None = None, *, preset: str | None = None, seed: int = 0) -> TriVLA:
     """The checkpoint at `checkpoint`; else, when `preset` is given, an UNTRAINED model of that preset
-    (for wiring and timing); else the shipped default checkpoint (models/trivla_cpu); else an UNTRAINED
-    `cpu` model. An untrained model is logged as a warning: its actions are meaningless."""
+    (for wiring and timing; logged as a warning: its actions are meaningless); else the shipped default
+    checkpoint (models/trivla_cpu), FileNotFoundError when it is missing."""
     check_model_choice(checkpoint, preset)
     if checkpoint is not None:
         return load_checkpoint(str(checkpoint)).eval()
+    if preset is not None:
+        _log.warning("no TriVLA checkpoint given: using an UNTRAINED '%s' model (--preset)", preset)
+        return TriVLA(make_config(preset, init_seed=seed), load_pretrained=False).eval()
     default = default_checkpoint_dir()
-    if preset is None and (default / "config.json").exists():
-        return load_checkpoint(str(default)).eval()
-    preset = preset or "cpu"
-    _log.warning("no TriVLA checkpoint given%s: using an UNTRAINED '%s' model",
-                 "" if (default / "config.json").exists() else f" and none at {default}", preset)
-    return TriVLA(make_config(preset, init_seed=seed), load_pretrained=False).eval()
+    if not (default / "config.json").is_file():
+        raise FileNotFoundError(
+            f"the shipped default checkpoint is missing: no config.json in {default} (restore it, e.g. "
+            f"`git checkout -- models/{DEFAULT_CHECKPOINT_NAME}`); or give --checkpoint DIR, or --preset NAME for "
+            "an UNTRAINED model")
+    return load_checkpoint(str(default)).eval()

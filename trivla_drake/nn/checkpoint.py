@@ -120,6 +120,10 @@ def read_checkpoint_config(directory: str) -> dict[str, Any]:
         raise ValueError(f"{path} is not a TriVLA checkpoint config (format != {FORMAT!r})")
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{path} has format_version {meta.get('format_version')}; this code reads {FORMAT_VERSION}")
+    for key in ("config", "normalization"):
+        if not isinstance(meta.get(key), dict):
+            raise ValueError(f"{path} has no {key!r} object (save_checkpoint writes one): an edited or incomplete "
+                             "checkpoint config; restore it from the run that made the checkpoint")
     return meta
 
 
@@ -136,13 +140,16 @@ def load_checkpoint(
     from safetensors import safe_open
 
     meta = read_checkpoint_config(directory)
-    config = config_from_dict(meta["config"])
+    try:
+        config = config_from_dict(meta["config"])
+    except ValueError as exc:
+        raise ValueError(f"{os.path.join(directory, CONFIG_FILE)}: {exc}") from exc
     pol = config.policy
     if action_dim is not None and action_dim != pol.action_dim:
         raise ValueError(f"checkpoint {directory!r} has action_dim {pol.action_dim}; expected {action_dim}")
     if state_dim is not None and state_dim != pol.state_dim:
         raise ValueError(f"checkpoint {directory!r} has state_dim {pol.state_dim}; expected {state_dim}")
-    stats = NormalizationStats.from_dict(meta.get("normalization", {}))
+    stats = NormalizationStats.from_dict(meta["normalization"])
     stats.check_dims(pol.state_dim, pol.action_dim)
 
     weights_path = os.path.join(directory, WEIGHTS_FILE)
@@ -153,6 +160,7 @@ def load_checkpoint(
             state = {key: f.get_tensor(key) for key in f.keys()}
     except Exception as exc:  # safetensors raises its own error types for truncated/corrupt files
         raise ValueError(f"{weights_path} is truncated or corrupt: {exc}") from exc
+    _check_finite(state, weights_path)
 
     tokenizers: dict[str, TextTokenizer] = {}
     for name, source in meta.get("tokenizers", {}).items():
@@ -166,6 +174,14 @@ def load_checkpoint(
     )
     _load_weights(model, state, weights_path)
     return model.to(device)
+
+
+def _check_finite(state: dict[str, torch.Tensor], source: str) -> None:
+    """ValueError naming the tensors of `state` holding NaN or infinite values (a diverged or corrupted run)."""
+    bad = [name for name, tensor in state.items() if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all())]
+    if bad:
+        raise ValueError(f"{source} holds NaN or infinite weights in {len(bad)} tensors (e.g. {bad[:3]}): "
+                         "a diverged or corrupted checkpoint; use an earlier checkpoint of its run")
 
 
 def _load_weights(model: TriVLA, state: dict[str, torch.Tensor], source: str) -> None:

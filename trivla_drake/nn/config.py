@@ -532,8 +532,30 @@ def config_to_dict(config: TriVLAConfig) -> dict[str, Any]:
     return dataclasses.asdict(config)
 
 
+# Fields added after checkpoints were first saved, each with the value that reproduces what a checkpoint saved
+# before the field existed was trained and run with (a missing field takes this value; any other missing field
+# is refused, since its default may not be what the checkpoint was made with). Dotted paths under `config`.
+FIELDS_OLDER_CHECKPOINTS_OMIT: dict[str, Any] = {
+    "vision_language.image_token_norm": False,
+    "vision_language.dense_classes": 0,
+    "vision_language.dense_subcells": 1,
+    "dynamics.feature_noise": "random",  # before it, System 3 drew its one-pass noise anew each call
+    "dynamics.feature_noise_seed": 0,
+    "policy.tcp_features": False,
+    "policy.vl_position_embedding": False,
+    "policy.instruction_grounding": False,
+    "policy.subgoal_offset": False,
+    "policy.grounding_reads_tcp": False,
+    "policy.grounding_reads_gripper": False,
+    "policy.subgoal_yaw": False,
+    "policy.grounding_anchor_camera": (),
+    "policy.grounding_anchor_wrist_camera": (),
+}
+
+
 def config_from_dict(data: dict[str, Any]) -> TriVLAConfig:
-    """Rebuilds a config from `config_to_dict` data; unknown or ill-typed fields raise ValueError."""
+    """Rebuilds a config from `config_to_dict` data; unknown, ill-typed or missing fields raise ValueError
+    naming the dotted field (only FIELDS_OLDER_CHECKPOINTS_OMIT may be missing: they take the value given there)."""
     return _from_dict(TriVLAConfig, data, "config")
 
 
@@ -546,6 +568,12 @@ def _from_dict(cls: type, data: Any, where: str) -> Any:
     if unknown:
         raise ValueError(f"{where} has unknown fields {sorted(unknown)}; known: {sorted(names)}")
     kwargs = {name: _coerce(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    for name in sorted(names - set(data)):
+        dotted = f"{where}.{name}".partition(".")[2]
+        if dotted not in FIELDS_OLDER_CHECKPOINTS_OMIT:
+            raise ValueError(f"{where}.{name} is missing (only fields added since older checkpoints were "
+                             f"saved may be, e.g. policy.subgoal_yaw): add it with the value the model was made with")
+        kwargs[name] = FIELDS_OLDER_CHECKPOINTS_OMIT[dotted]
     return cls(**kwargs)
 
 

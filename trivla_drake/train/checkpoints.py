@@ -134,6 +134,66 @@ def latest_checkpoint(out: str | os.PathLike) -> Path | None:
     return max(candidates, key=lambda c: (c[0], c[1].name == FINAL_DIR))[1]
 
 
+def checkpoint_problem(directory: str | os.PathLike) -> str | None:
+    """Why checkpoint `directory` cannot be resumed from (a truncated or corrupt file, named), or None when its
+    training state, training config, model config and weights all read."""
+    from safetensors import safe_open
+
+    from trivla_drake.nn.checkpoint import CONFIG_FILE, WEIGHTS_FILE, read_checkpoint_config
+
+    try:
+        read_step(directory)
+        load_train_state(directory)
+        load_train_config(directory)
+        read_checkpoint_config(str(directory))
+        weights = Path(directory) / WEIGHTS_FILE
+        try:
+            with safe_open(str(weights), framework="pt", device="cpu") as f:
+                for key in f.keys():
+                    f.get_tensor(key)
+        except Exception as exc:  # noqa: BLE001 - safetensors raises its own types for truncated files
+            raise ValueError(f"{weights} is missing, truncated or corrupt: {exc}") from exc
+    except (OSError, ValueError) as exc:
+        return str(exc).splitlines()[0] if str(exc) else f"{CONFIG_FILE}: {type(exc).__name__}"
+    return None
+
+
+def newest_intact_checkpoint(out: str | os.PathLike, *, set_aside: bool) -> tuple[Path | None, list[tuple[Path, str, Path]]]:
+    """The newest checkpoint of run `out` that can be resumed from (`checkpoint_problem`), and the newer ones
+    skipped: (folder, why, where it is kept). With `set_aside` (one process only) and an intact checkpoint found, a
+    skipped folder is renamed to `<name>.unreadable` beside it, never deleted: the resumed run would otherwise
+    replace it when it reaches its step, and `prune_checkpoints` would delete it."""
+    candidates = [path for _, path in list_checkpoints(out)]
+    final = Path(out) / FINAL_DIR
+    if final.is_dir():
+        candidates.append(final)
+
+    def order(path: Path) -> tuple[int, bool]:
+        try:
+            return read_step(path), path.name == FINAL_DIR
+        except ValueError:
+            return -1, path.name == FINAL_DIR
+
+    skipped: list[tuple[Path, str]] = []
+    for path in sorted(candidates, key=order, reverse=True):
+        problem = checkpoint_problem(path)
+        if problem is None:
+            kept = [(broken, why, _set_aside(broken) if set_aside else broken) for broken, why in skipped]
+            return path, kept
+        skipped.append((path, problem))
+    return None, [(broken, why, broken) for broken, why in skipped]
+
+
+def _set_aside(folder: Path) -> Path:
+    target = folder.with_name(f"{folder.name}.unreadable")
+    n = 1
+    while target.exists():
+        n += 1
+        target = folder.with_name(f"{folder.name}.unreadable-{n}")
+    os.rename(folder, target)
+    return target
+
+
 def read_step(directory: str | os.PathLike) -> int:
     """The step a checkpoint was written at."""
     path = Path(directory) / STEP_FILE

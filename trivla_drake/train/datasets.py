@@ -44,6 +44,13 @@ def episode_fingerprint(reader: LeRobotReader, episode: int) -> str:
     return hashlib.sha256(payload + cameras).hexdigest()[:16]
 
 
+def episode_content_fingerprint(reader: LeRobotReader, episode: int) -> str:
+    """`episode_fingerprint` and the sha256 of the episode's data and video files (checked against the dataset's
+    recorded checksums): the name of what is cached from an episode, so a replaced file is never read stale."""
+    digests = json.dumps(reader.episode_digests(episode), sort_keys=True).encode()
+    return hashlib.sha256(episode_fingerprint(reader, episode).encode() + digests).hexdigest()[:16]
+
+
 def episode_task(reader: LeRobotReader, episode: int) -> str:
     """The task an episode demonstrates: the suite task name where the dataset records it (one task has
     many instruction phrasings), else LeRobot's task, the instruction."""
@@ -193,7 +200,8 @@ class _LRU:
 
 class FrameStore:
     """Decoded camera frames resized to `size`, one .npy per (episode, camera) in `root`, memory-mapped.
-    Files are named by the episode's fingerprint, so they are made once and shared across runs."""
+    Files are named by the episode's content (`episode_content_fingerprint`), so they are made once and shared
+    across runs, and a replaced video is decoded again."""
 
     def __init__(self, reader: LeRobotReader, cameras: list[str], size: int, root: str | os.PathLike) -> None:
         check_cameras(reader, cameras)
@@ -205,7 +213,7 @@ class FrameStore:
     def path(self, episode: int, camera: str) -> Path:
         """The .npy file of one episode's camera."""
         if episode not in self._fingerprints:
-            self._fingerprints[episode] = episode_fingerprint(self.reader, episode)
+            self._fingerprints[episode] = episode_content_fingerprint(self.reader, episode)
         return self.root / f"{self._fingerprints[episode]}-{camera.replace('/', '_')}.npy"
 
     def missing(self, episodes: list[int]) -> list[tuple[int, str]]:

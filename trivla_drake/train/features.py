@@ -7,8 +7,9 @@ Layout: CACHE/features/<key>/<episode fingerprint>.safetensors, one shard per ep
     frame_index      (N,)                     the episode frames (every feature_stride-th)
 <key> hashes the System 2/3 weights and configs and every training setting the features depend on
 (image size, stride, dtype, noise seed, batch size, cameras), so another model or setting never reads
-stale features (`FeatureKeys`); the episode
-fingerprint hashes the episode's content. Shards are written atomically (temporary file renamed),
+stale features (`FeatureKeys`); the episode fingerprint (`episode_content_fingerprint`) hashes the episode's
+metadata and the sha256 of its data and video files, checked against the dataset's recorded checksums (a
+corrupted file stops caching with an error naming it; a replaced video gets new features). Shards are written atomically (temporary file renamed),
 so an interrupted caching run resumes with the episodes it did not finish; under torchrun the missing
 episodes are split across ranks.
 
@@ -43,7 +44,7 @@ from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
-from trivla_drake.train.datasets import episode_fingerprint, resize_frames
+from trivla_drake.train.datasets import episode_content_fingerprint, episode_fingerprint, resize_frames
 from trivla_drake.train.distributed import DistEnv
 
 FORMAT_VERSION = 3  # 2: System 3 features with the config's feature_noise; 3: the System 2/3 configs in the keys
@@ -160,6 +161,7 @@ def compute_episode_features(
     wrist = resize_frames(reader.episode_video(episode, config.wrist_camera)[frames_index], model.image_size)
     instruction = reader.task_of(episode)
     dtype = _DTYPES[config.feature_dtype]
+    # Seeded from the metadata alone, as before the cache was keyed by content: "random" noise draws the same.
     generator = torch.Generator().manual_seed(_episode_seed(config.feature_seed, episode_fingerprint(reader, episode)))
     parts: dict[str, list[torch.Tensor]] = {}
     for start in range(0, len(frames_index), config.feature_batch_size):
@@ -229,7 +231,7 @@ def ensure_feature_cache(
     keys = FeatureKeys(model, config)
     key, dynamics_key = keys.full, keys.dynamics
     root = Path(config.cache_dir) / "features" / key
-    shards = {e: root / f"{episode_fingerprint(reader, e)}.safetensors" for e in episodes}
+    shards = {e: root / f"{episode_content_fingerprint(reader, e)}.safetensors" for e in episodes}
     missing: list[int] = []
     copy_from: dict[int, Path] = {}  # episode -> lender shard whose System 3 tensors it copies
     if env.is_main:

@@ -569,6 +569,14 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         raise ValueError(f"{out} already holds a training run (newest checkpoint: {latest}); "
                          "pass --resume to continue it, or choose another --out")
     if config.resume and latest is not None:
+        latest, skipped = ckpt.newest_intact_checkpoint(out, set_aside=env.is_main)
+        if latest is None:
+            raise ValueError(f"cannot resume {out}: no checkpoint of it is intact ("
+                             + "; ".join(f"{path}: {why}" for path, why, _ in skipped)
+                             + "); start a new run with another --out")
+        for path, why, kept in skipped:
+            _note(env, f"warning: skipping checkpoint {path} ({why}); resuming from the newest intact one, {latest} "
+                       f"(the broken one is kept, as {kept})")
         saved = ckpt.load_train_config(latest)
         if config.preset is None:
             config = dataclasses.replace(config, preset=saved.preset)
@@ -638,6 +646,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     trained.train()
 
     prepare_started = time.time()
+    for one in readers:  # a corrupted or replaced data / video file stops the run before any caching, naming it
+        one.verify_files()
     dataset, collate, data_summary = _prepare_data(config, model, readers, env)
     # A resumed run keeps its checkpoint's statistics, a follow run its bind run's (what the binding learnt on),
     # and a held-only bind its --init's (everything but the held-block read-out stays as it was).
