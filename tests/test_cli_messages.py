@@ -16,7 +16,7 @@ def _error(capsys, *argv) -> str:
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["sim", "--seconds", "0"], "--seconds must be positive"),
+    (["sim", "--seconds", "0"], "--seconds must be a finite number of seconds above 0"),
     (["bench", "--preset", "tiny", "--checkpoint", "models/trivla_cpu"], "--preset (an UNTRAINED model"),
     (["demo", "--preset", "tiny", "--checkpoint", "models/trivla_cpu"], "--preset (an UNTRAINED model"),
     (["demo", "--policy", "oracle", "--preset", "tiny"], "--preset, --noise-scale"),

@@ -94,3 +94,25 @@ def test_camera_background_other_than_the_renderers_is_named(scenario):
     scenario.cameras["static_camera"].background = Rgba(0.2, 0.2, 0.2, 1.0)
     with pytest.raises(ValueError, match="cameras.static_camera.background"):
         make_station(scenario)
+
+
+def test_unknown_contact_model_names_the_field_and_the_accepted_values(tmp_path):
+    bad = tmp_path / "typo.scenarios.yaml"
+    bad.write_text(default_scenario_file().read_text().replace("lagged", "lagd"))
+    with pytest.raises(ScenarioError, match=r"typo.scenarios.yaml: plant_config.discrete_contact_approximation must be "
+                                            r"one of tamsi, sap, similar, lagged; got 'lagd'"):
+        load_scenario(bad)
+
+
+@pytest.mark.parametrize("cut_after, message", [
+    ("  directives:\n", r"these fields have no value: directives \(the file does not end"),
+    ("      default_joint_positions:\n", r"these fields have no value: directives\[2\]\.add_model\.default_joint_positions"),
+    ("  plant_config:\n    tim", r"unknown field 'tim' \(the file does not end with a line break: is it cut short\?\)"),
+    ("default", r"the file holds no scenarios"),
+])
+def test_a_truncated_file_says_what_is_missing_and_that_it_looks_cut_short(tmp_path, cut_after, message):
+    text = default_scenario_file().read_text()
+    cut = tmp_path / "cut.scenarios.yaml"
+    cut.write_text(text[:text.index(cut_after) + len(cut_after)].rstrip("\n") + " ")
+    with pytest.raises(ScenarioError, match=r"cannot load scenario 'default' from .*cut.scenarios.yaml: " + message):
+        load_scenario(cut)

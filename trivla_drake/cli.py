@@ -28,8 +28,11 @@ def _print_result(result: dict, as_json: bool, title: str) -> None:
 
 
 def _cmd_sim(args) -> int:
-    if not args.seconds > 0:
-        raise ValueError(f"--seconds must be positive, got {args.seconds}")
+    from trivla_drake.eval.cli_commands import check_port, check_record_path, check_seconds
+
+    check_seconds(args.seconds, "--seconds")
+    check_port(args.port)
+    check_record_path(args.record)
     from trivla_drake.eval.scripted_run import run_scripted
     from trivla_drake.station.meshcat_setup import make_meshcat
     from trivla_drake.station.scenario import load_scenario
@@ -57,6 +60,9 @@ def _set_torch_threads(threads: int) -> None:
 
 
 def _cmd_bench(args) -> int:
+    from trivla_drake.eval.cli_commands import check_seconds
+
+    check_seconds(args.seconds, "--seconds")
     result: dict = {}
     if args.precision != "float32" and not args.model:
         raise ValueError("--precision goes with --model (the station benchmarks run the model in float32)")
@@ -99,14 +105,15 @@ def _check_chunk_execution(args, model) -> None:
 
 
 def _cmd_demo(args) -> int:
+    from trivla_drake.eval.cli_commands import check_instruction_text, check_port, check_record_path, check_seconds
     from trivla_drake.eval.demo import run_oracle_demo, run_trivla_demo
+    from trivla_drake.eval.evaluate import check_episode_count
     from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
     from trivla_drake.systems.latency import LatencyModel
-    from trivla_drake.tasks.suite import get_task
+    from trivla_drake.tasks.suite import check_run_settings
 
     if args.chains is not None:
-        if args.chains < 1:
-            raise ValueError(f"--chains must be at least 1, got {args.chains}")
+        check_episode_count(args.chains, "--chains")
         given = [flag for flag, value in (("--task", args.task), ("--instruction", args.instruction),
                                           ("--episodes", args.episodes)) if value is not None]
         if given:
@@ -116,9 +123,14 @@ def _cmd_demo(args) -> int:
                              "trivla-drake evaluate --policy oracle --episodes 0 --chains N")
     args.task = args.task or DEMO_TASK
     args.episodes = 1 if args.episodes is None else args.episodes
-    get_task(args.task)  # an unknown name fails here, listing the valid ones
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
+    # `evaluate`'s checks of the task (an unknown name lists the valid ones) and --seed; then the rest, all before
+    # a model loads or a simulation runs.
+    check_run_settings([args.task], args.seed, stacked_picks=False)
+    check_episode_count(args.episodes, "--episodes")
+    check_seconds(args.max_seconds, "--max-seconds")
+    check_instruction_text(args.instruction)
+    check_port(args.port)
+    check_record_path(args.record)
     latency = LatencyModel.parse(args.latency)
     if args.policy == "oracle":
         if (args.meshcat or args.record or args.instruction or args.checkpoint or args.preset or args.noise_scale is not None
@@ -190,6 +202,9 @@ def _names(comma_separated: str) -> list[str]:
 def _cmd_tables(args) -> int:
     from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
 
+    from trivla_drake.eval.evaluate import check_episode_count
+
+    check_episode_count(args.latency_episodes, "--latency-episodes", minimum=0)
     if args.evaluations and args.no_reuse:
         raise ValueError("--evaluations names a folder of evaluations to reuse, and --no-reuse reuses none: pass one")
     checkpoints = {role: path for role, path in (("full", args.full), ("system1_3", args.system1_3),

@@ -28,10 +28,12 @@ name (tasks/motions.py, `detours`); each episode's metadata records how many.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import shutil
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -56,6 +58,7 @@ from trivla_drake.data.lerobot import (
 )
 from trivla_drake.eval.action_noise import Disturbance, PerturbationBursts, YawTwists
 from trivla_drake.eval.approach_drifts import ApproachDrifts
+from trivla_drake.eval.evaluate import check_episode_count, results_in_order
 from trivla_drake.eval.missed_grasps import MissedGrasps
 from trivla_drake.eval.policy_takeover import PolicyTakeover
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
@@ -120,8 +123,7 @@ class CollectConfig:
     stacked_picks: float = 0.0
 
     def validate(self) -> None:
-        if self.episodes_per_task < 1:
-            raise ValueError(f"--episodes-per-task must be >= 1, got {self.episodes_per_task}")
+        check_episode_count(self.episodes_per_task, "--episodes-per-task")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
         if self.image_size < 16 or self.image_size % 2:
@@ -288,9 +290,10 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     try:
         while True:
             batch = _next_batch(config, done, state.failed)
-            if not batch:
+            first = next(batch, None)
+            if first is None:
                 break
-            for result in _run_ordered(config, batch, pool):
+            for result in _run_ordered(config, itertools.chain([first], batch), pool):
                 task, attempt = result["task"], result["attempt"]
                 if not result["success"]:
                     state.add_failure(task, attempt, result["reason"])
@@ -336,19 +339,21 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     }
 
 
-def _next_batch(config: CollectConfig, done: dict[str, set[int]], failed: dict[str, dict]) -> list[tuple[str, int]]:
+def _next_batch(config: CollectConfig, done: dict[str, set[int]], failed: dict[str, dict]) -> Iterator[tuple[str, int]]:
     """The next attempts to run: for each task still short of episodes, as many new attempts as it
-    needs, interleaved across tasks (so a partial dataset stays balanced)."""
-    per_task: list[list[tuple[str, int]]] = []
-    for task in config.tasks:
-        need = config.episodes_per_task - len(done[task])
-        tried = done[task] | {int(a) for a in failed.get(task, {})}
-        fresh = [a for a in range(config.max_attempts()) if a not in tried][: max(need, 0)]
-        per_task.append([(task, a) for a in fresh])
-    batch = []
-    for rank in range(max((len(p) for p in per_task), default=0)):
-        batch.extend(p[rank] for p in per_task if rank < len(p))
-    return batch
+    needs, interleaved across tasks (so a partial dataset stays balanced). Drawn as they run (the attempts done and
+    failed are read now), never listed up front."""
+    per_task = [_fresh_attempts(task, config.episodes_per_task - len(done[task]), config.max_attempts(),
+                                done[task] | {int(a) for a in failed.get(task, {})}) for task in config.tasks]
+    skipped = object()
+    for rank in itertools.zip_longest(*per_task, fillvalue=skipped):
+        yield from (attempt for attempt in rank if attempt is not skipped)
+
+
+def _fresh_attempts(task: str, need: int, max_attempts: int, tried: set[int]) -> Iterator[tuple[str, int]]:
+    """(task, attempt) of the first `need` attempts below `max_attempts` not in `tried`."""
+    fresh = (attempt for attempt in range(max_attempts) if attempt not in tried)
+    return ((task, attempt) for attempt in itertools.islice(fresh, max(need, 0)))
 
 
 def _takeover_worker_init() -> None:
@@ -357,17 +362,15 @@ def _takeover_worker_init() -> None:
     torch.set_num_threads(1)  # each worker's learned policy (--takeover) on one core: threads would fight
 
 
-def _run_ordered(config: CollectConfig, batch: list[tuple[str, int]], pool):
-    """Yield the attempts' results in batch order (computed in `pool` if given)."""
+def _run_ordered(config: CollectConfig, batch: Iterable[tuple[str, int]], pool):
+    """Yield the attempts' results in batch order (computed in `pool` if given, a few attempts ahead)."""
     if pool is None:
         for task, attempt in batch:
             yield _attempt(config, task, attempt)
         return
-    futures = {pool.submit(_attempt, config, task, attempt): i for i, (task, attempt) in enumerate(batch)}
-    ready: dict[int, dict] = {}
-    next_index = 0
-    for future in as_completed(futures):
-        ready[futures[future]] = future.result()
-        while next_index in ready:
-            yield ready.pop(next_index)
-            next_index += 1
+    yield from results_in_order(pool, _attempt_job, config, batch, ahead=4 * config.workers)
+
+
+def _attempt_job(config: CollectConfig, job: tuple[str, int]) -> dict:
+    """`_attempt` of one (task, attempt); top level: runs in workers."""
+    return _attempt(config, *job)

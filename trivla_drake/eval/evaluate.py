@@ -7,8 +7,11 @@ so a run with `workers` processes gives exactly the results of a serial run with
 
 from __future__ import annotations
 
+import itertools
 import math
-from concurrent.futures import ProcessPoolExecutor
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -22,6 +25,9 @@ _POLICY_CACHE: dict[tuple, object] = {}
 # Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
 # demonstrations (tests check the two seed sets are disjoint).
 EVAL_BASE_SEED = 1000
+# The most episodes per task (or chains) one run takes: more would run for months (an episode takes seconds), and a
+# number such as 10**20 is a typo to refuse before anything runs.
+MAX_EPISODES = 100_000
 # With a prelude: how many times an episode's scene is redrawn when the oracle's prelude fails or leaves the
 # task no way to start (then the episode counts as a failure with the prelude's reason).
 PRELUDE_REDRAWS = 10
@@ -81,6 +87,8 @@ class EvalConfig:
     def validate(self) -> None:
         if self.episodes < 0 or self.chains < 0:
             raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
+        check_episode_count(self.episodes, "--episodes", minimum=0)
+        check_episode_count(self.chains, "--chains", minimum=0)
         if not self.tasks and self.chains <= 0:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
         check_run_settings(self.tasks, self.seed, self.stacked_picks)
@@ -117,6 +125,14 @@ class EvalConfig:
     def policy_key(self) -> tuple:
         """What loads this config's policy (see `_policy`)."""
         return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay, self.home_first
+
+
+def check_episode_count(count: int, flag: str, *, minimum: int = 1) -> int:
+    """`count` if it is an integer from `minimum` to MAX_EPISODES; else ValueError naming `flag` and the range."""
+    if isinstance(count, bool) or not isinstance(count, int) or not minimum <= count <= MAX_EPISODES:
+        raise ValueError(f"{flag} must be at least {minimum} and at most {MAX_EPISODES} (an integer; MAX_EPISODES: a "
+                         f"larger run would take months, split it into runs of other seeds), got {count!r}")
+    return count
 
 
 def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | None = None,
@@ -185,30 +201,41 @@ def _worker_init() -> None:
     torch.set_num_threads(1)  # one process per core: threads would only fight over the cores
 
 
-def run_jobs(config: EvalConfig, jobs: list[tuple], *, progress: bool, description: str) -> list[dict]:
-    """Results of `jobs` in order, run in `config.workers` processes."""
+def run_jobs(config: EvalConfig, jobs: Iterable[tuple], *, progress: bool, description: str,
+             total: int | None = None) -> list[dict]:
+    """Results of `jobs` (a list, or an iterable of `total` jobs, drawn as they run) in order, run in
+    `config.workers` processes."""
     from tqdm import tqdm
 
-    bar = tqdm(total=len(jobs), desc=description, disable=not progress, unit="ep")
-    results: list[dict | None] = [None] * len(jobs)
+    total = len(jobs) if total is None else total  # type: ignore[arg-type]
+    bar = tqdm(total=total, desc=description, disable=not progress, unit="ep")
+    results: list[dict] = []
     try:
-        if config.workers == 1 or len(jobs) <= 1:
-            for i, job in enumerate(jobs):
-                results[i] = _run_job(config, job)
+        if config.workers == 1 or total <= 1:
+            for job in jobs:
+                results.append(_run_job(config, job))
                 bar.update(1)
         else:
             with ProcessPoolExecutor(
                 max_workers=config.workers, mp_context=get_context("spawn"), initializer=_worker_init
             ) as pool:
-                futures = {pool.submit(_run_job, config, job): i for i, job in enumerate(jobs)}
-                from concurrent.futures import as_completed
-
-                for future in as_completed(futures):
-                    results[futures[future]] = future.result()
+                for result in results_in_order(pool, _run_job, config, jobs, ahead=4 * config.workers):
+                    results.append(result)
                     bar.update(1)
     finally:
         bar.close()
-    return results  # type: ignore[return-value]
+    return results
+
+
+def results_in_order(pool: Executor, function, config, jobs: Iterable, *, ahead: int) -> Iterator:
+    """`function(config, job)` of each of `jobs`, computed in `pool`, yielded in the jobs' order; at most `ahead` jobs
+    are submitted beyond the one awaited, so a long (lazy) list of jobs is never drawn up front."""
+    jobs = iter(jobs)
+    pending = deque(pool.submit(function, config, job) for job in itertools.islice(jobs, ahead))
+    while pending:
+        result = pending.popleft().result()
+        pending.extend(pool.submit(function, config, job) for job in itertools.islice(jobs, 1))
+        yield result
 
 
 def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
@@ -329,10 +356,14 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
     """Run the episodes and chains of `config` and return the report (see `summarize`)."""
     config.validate()
     _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
-    jobs = [("episode", name, i) for i in range(config.episodes) for name in config.tasks]
-    episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}") if jobs else []
-    chain_jobs = [("chain", "chain", j) for j in range(config.chains)]
-    chains = run_jobs(config, chain_jobs, progress=progress, description="chains") if chain_jobs else []
+    # Drawn as they run, never listed up front: episode i of every task, then i + 1, ...
+    jobs = (("episode", name, i) for i in range(config.episodes) for name in config.tasks)
+    count = config.episodes * len(config.tasks)
+    episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}",
+                        total=count) if count else []
+    chain_jobs = (("chain", "chain", j) for j in range(config.chains))
+    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", total=config.chains)
+              if config.chains else [])
     return summarize(config, episodes, chains)
 
 

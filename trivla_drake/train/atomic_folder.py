@@ -1,6 +1,7 @@
 """A folder written atomically and durably: filled under a temporary name, its files flushed to disk, renamed into
-place only when complete (a folder under its final name is always whole, even after a power loss); and a cached folder
-keyed by its settings (its meta.json), made once that way and never overwritten by other settings."""
+place only when complete (a folder under its final name is always whole, even after a power loss); a cached folder
+keyed by its settings (its meta.json), made once that way and never overwritten by other settings; and the check that
+an output folder may be replaced at all (never the working folder, nor a user's folder of other things)."""
 
 from __future__ import annotations
 
@@ -44,6 +45,28 @@ def replace_folder(new: Path, target: Path) -> None:
     os.rename(target, old)
     os.rename(new, target)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def check_replaceable_folder(folder: str | os.PathLike, *, flag: str, holds_earlier_output: Callable[[Path], bool],
+                             what: str, overwrite: bool = False, overwrite_flag: str = "--overwrite") -> None:
+    """ValueError naming `flag` unless `folder` may be replaced by a new folder of `what`: it does not exist, is empty,
+    or holds an earlier `what` (`holds_earlier_output(folder)`), or `overwrite` is given. Never (not even with
+    `overwrite`) a file, the working folder or a folder holding it: replacing those would delete the user's files."""
+    folder = Path(folder)
+    if not folder.exists() and not folder.is_symlink():
+        return
+    if not folder.is_dir():
+        raise ValueError(f"{flag} {folder} is a file, not a folder: choose a folder for the {what}")
+    resolved, cwd = folder.resolve(), Path.cwd().resolve()
+    if resolved == cwd or resolved in cwd.parents:
+        raise ValueError(f"{flag} {folder} is the working folder {cwd} or holds it: replacing it would delete "
+                         f"everything in it; choose a new folder for the {what}")
+    entries = sorted(p.name for p in folder.iterdir())
+    if not entries or holds_earlier_output(folder) or overwrite:
+        return
+    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
+    raise ValueError(f"{flag} {folder} is not empty ({shown}) and does not hold an earlier {what}: choose a new "
+                     f"folder, or pass {overwrite_flag} to replace it and delete everything in it")
 
 
 def _fsync_tree(directory: Path) -> None:

@@ -288,9 +288,32 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     return parser
 
 
-def _write_model_folder(command: str, args: argparse.Namespace, write, what: str = "") -> int:
-    """Runs `write()` (-> the folder written) and reports the folder's size, or a user error as exit code 2."""
+def holds_model_export(folder) -> bool:
+    """Whether `folder` holds just what `export` and `soup` write: a checkpoint's config.json and weights (and its
+    tokenizer folders), nothing else."""
+    from pathlib import Path
+
+    from trivla_drake.nn.checkpoint import CONFIG_FILE, WEIGHTS_FILE, read_checkpoint_config
+
+    names = {p.name for p in Path(folder).iterdir() if not (p.is_dir() and p.name.startswith("tokenizer_"))}
+    if names != {CONFIG_FILE, WEIGHTS_FILE}:
+        return False
     try:
+        read_checkpoint_config(str(folder))
+    except ValueError:
+        return False
+    return True
+
+
+def _write_model_folder(command: str, args: argparse.Namespace, write, what: str = "") -> int:
+    """Runs `write()` (-> the folder written) and reports the folder's size, or a user error as exit code 2. First
+    `--out` is checked (before any model loads): a folder other than an earlier export is replaced only with
+    --overwrite, and never the working folder."""
+    from trivla_drake.train.atomic_folder import check_replaceable_folder
+
+    try:
+        check_replaceable_folder(args.out, flag="--out", holds_earlier_output=holds_model_export,
+                                 what="model (config.json and model.safetensors)", overwrite=args.overwrite)
         target = write()
     except _user_errors() as error:
         print(f"trivla-drake {command}: error: {error}", file=sys.stderr)
@@ -298,6 +321,16 @@ def _write_model_folder(command: str, args: argparse.Namespace, write, what: str
     size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
     print(f"wrote {target}{what} ({size / 1e6:.1f} MB, weights in {args.dtype})")
     return 0
+
+
+def add_out_arguments(parser: argparse.ArgumentParser) -> None:
+    """--out and --overwrite of `export` and `soup`."""
+    parser.add_argument("--out", required=True,
+                        help="folder to write; an earlier export there is replaced atomically once the new one is "
+                             "complete, any other non-empty folder only with --overwrite")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace --out even when it holds other things than an earlier export (they are deleted; "
+                             "never the working folder)")
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -315,7 +348,7 @@ def add_export_parser(commands) -> argparse.ArgumentParser:
         "export", help="write a checkpoint's model (no optimizer state) with float16 weights, e.g. for "
                        "models/trivla_cpu")
     parser.add_argument("checkpoint", help="checkpoint folder (a run's final/ or checkpoints/step-N/)")
-    parser.add_argument("--out", required=True, help="folder to write (replaced atomically if it exists)")
+    add_out_arguments(parser)
     parser.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
                         help="stored weight type (default float16); loading casts back to float32")
     parser.add_argument("--drop-unused-llm-layers", action="store_true",
@@ -345,7 +378,7 @@ def add_soup_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT",
                         help="two or more checkpoint folders with the same config.json and the same frozen "
                              "Systems 2 and 3 (runs' final/)")
-    parser.add_argument("--out", required=True, help="folder to write (replaced atomically if it exists)")
+    add_out_arguments(parser)
     parser.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
                         help="stored weight type (default float16); the average is taken in float32")
     parser.add_argument("--drop-unused-llm-layers", action="store_true",
