@@ -16,9 +16,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import CameraConfig
 
-from trivla_drake.eval.model_loading import load_model
-from trivla_drake.station import load_scenario, make_simulator, make_station
-from trivla_drake.systems.policy_wiring import add_trivla_policy
+from trivla_drake import add_trivla_policy, load_model, load_scenario, make_simulator, make_station
 
 
 class HandToBlockDistance(LeafSystem):

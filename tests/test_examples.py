@@ -44,3 +44,9 @@ def test_system3_predictions_example(tmp_path):
     _run("system3_predictions.py", "--at", "0.2", "--frame-spacing", "0.1", "--out", str(image))
     grid = cv2.imread(str(image))
     assert grid is not None and grid.shape[0] == 4 * 112  # real/predicted x static/wrist rows
+
+
+def test_user_diagram_example():
+    """A user's own plant (base moved and turned), cameras and driver, the policy added through the public API."""
+    out = _run("user_diagram.py", "--seconds", "0.4")
+    assert "hand (world)" in out and "tracking error" in out

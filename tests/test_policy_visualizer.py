@@ -44,3 +44,12 @@ def test_chunk_path_integrates_clipped_translations():
     path = chunk_path(np.array([0.4, 0.0, 0.3]), chunk)
     np.testing.assert_allclose(path[-1], [0.5, 0.0, 0.2], atol=1e-12)
     np.testing.assert_allclose(np.diff(path[:, 0]), 0.01)
+
+
+def test_chunk_path_turns_base_frame_translations_into_the_world():
+    """With the base turned 90 degrees about z, a chunk moving along the base's x moves along the world's y."""
+    chunk = np.zeros((10, 7))
+    chunk[:, 0] = 0.01
+    R_WB = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    path = chunk_path(np.array([0.4, 0.0, 0.3]), chunk, R_WB=R_WB)
+    np.testing.assert_allclose(path[-1], [0.4, 0.1, 0.3], atol=1e-12)

@@ -10,8 +10,9 @@ control frequency):
     [dx, dy, dz, drx, dry, drz, gripper]
 
 - dx, dy, dz [m]: translation of the commanded tool-centre point (`panda_hand_tcp`) in the
-  world frame (x away from the robot, y to its left, z up).
-- drx, dry, drz [rad]: rotation increment as an axis-angle vector in world axes, applied to the
+  robot's base frame B, `panda_link0` (x away from the robot, y to its left, z up; the station welds
+  the base at the world origin, so there B is the world; elsewhere `ee_target` = X_WB times the pose in B).
+- drx, dry, drz [rad]: rotation increment as an axis-angle vector in base-frame axes, applied to the
   commanded tcp orientation by left multiplication: R_next = Exp([drx, dry, drz]) R.
 - gripper: > 0 opens the hand (fingers 0.08 m apart), <= 0 closes it (commanded width 0; the
   fingers squeeze whatever is between them). Demonstrations only contain +1 and -1.
@@ -50,7 +51,7 @@ class ActionSpace:
     max_translation: float = 0.01
     # Largest rotation increment per step and component [rad].
     max_rotation: float = 0.05
-    # Box the commanded tcp position is kept in [m] (world frame).
+    # Box the commanded tcp position is kept in [m] (robot base frame).
     workspace_low: tuple[float, float, float] = (0.1, -0.6, 0.005)
     workspace_high: tuple[float, float, float] = (0.9, 0.6, 0.7)
 

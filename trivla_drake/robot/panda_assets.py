@@ -75,7 +75,9 @@ def drake_panda_dir() -> Path:
 
 
 def drake_panda_urdf() -> Path:
-    """The Drake-readable Panda URDF (converted meshes, actuated arm and fingers)."""
+    """The Drake-readable Panda URDF (converted meshes, actuated arm and fingers), converting on first use.
+    Its meshes are `package://trivla_panda/...` URLs: load it with a Parser that knows that package
+    (`trivla_drake.station.station.make_parser(plant)`), then weld `panda_link0` where the base stands."""
     return drake_panda_dir() / "panda.urdf"
 
 

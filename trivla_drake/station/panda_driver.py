@@ -8,6 +8,7 @@ joints track position setpoints with PD gains. The PD runs inside the plant's di
 from __future__ import annotations
 
 import numpy as np
+from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import PdControllerGains
@@ -23,13 +24,17 @@ N_JOINTS = N_ARM + len(FINGER_JOINTS)
 MAX_GRIPPER_WIDTH = 0.08  # [m] both fingers at their 0.04 m limit
 
 
-def make_panda_only_plant(urdf_path: str, package_map_source: Parser) -> MultibodyPlant:
-    """A continuous plant of the Panda alone (base welded), for the driver's dynamics terms."""
+def make_panda_only_plant(urdf_path: str, package_map_source: Parser, *,
+                          X_WB: RigidTransform | None = None) -> MultibodyPlant:
+    """A continuous plant of the Panda alone, its base `panda_link0` welded at X_WB (its pose in the world,
+    identity by default), for the driver's dynamics terms: give the same X_WB as in the simulated plant when
+    the base is tilted, so gravity compensation pulls the right way (a base only moved or turned about the
+    vertical needs none)."""
     plant = MultibodyPlant(time_step=0.0)
     parser = Parser(plant)
     parser.package_map().AddMap(package_map_source.package_map())
     (instance,) = parser.AddModels(urdf_path)
-    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", instance))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("panda_link0", instance), X_WB or RigidTransform())
     plant.Finalize()
     return plant
 
@@ -41,10 +46,15 @@ def add_panda_driver(
     controller_plant: MultibodyPlant,
     config: PandaDriverConfig,
 ):
-    """Wire the driver; returns (arm setpoint input, gripper width input) to export.
+    """Wire the Panda's driver into `builder`; returns (arm setpoint InputPort, gripper width InputPort), to
+    connect or export.
 
+    `plant`: the simulated MultibodyPlant, finalized, with the Panda (from `drake_panda_urdf()`) as
+    `panda_instance`; `controller_plant`: `make_panda_only_plant(...)`, owned by the diagram from here on;
+    `config`: a `PandaDriverConfig` (PD gains; its defaults are the station's).
     Arm setpoint: 7 joint positions [rad]. Gripper width: distance between the fingers [m]
-    (each finger tracks half of it).
+    (each finger tracks half of it). The measured state is the plant's `get_state_output_port(panda_instance)`,
+    18-vector [q (7 arm [rad], 2 fingers [m]); v], what the policy's `robot_state` reads.
     """
     if len(config.arm_kp) != N_ARM or len(config.arm_kd) != N_ARM:
         raise ValueError(

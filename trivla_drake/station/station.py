@@ -78,7 +78,8 @@ def _check_base_at_origin(plant, panda) -> None:
         raise ScenarioError(
             "scenario directives: panda::panda_link0 must be welded at the world origin, unrotated (the diff-IK, the "
             f"actions and the policy's hand poses are in the Panda's base frame, taken as the world's); it is at "
-            f"{np.round(X_WB.translation(), 4).tolist()} m: move the other models instead")
+            f"{np.round(X_WB.translation(), 4).tolist()} m: move the other models instead, or build a world of your own "
+            "and pass the base pose to add_trivla_policy(X_WB=...) (examples/user_diagram.py)")
 
 
 def make_station(scenario: Scenario, *, meshcat: Meshcat | None = None) -> Diagram:

@@ -1,4 +1,5 @@
-"""trivla_drake.systems: Drake LeafSystems, thin adapters over nn/ and robot/."""
+"""trivla_drake.systems: Drake LeafSystems, thin adapters over nn/ and robot/ (the public API is exported by
+`trivla_drake` itself: `from trivla_drake import TriVLAPolicy, add_trivla_policy, ...`)."""
 
 from trivla_drake.systems.diffik_system import DifferentialIKSystem
 

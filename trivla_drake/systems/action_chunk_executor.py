@@ -19,6 +19,7 @@ from trivla_drake.systems.action_executor import (
     ActionSpace,
     apply_action,
 )
+from trivla_drake.systems.robot_base import base_pose_matrix
 
 
 @dataclass(frozen=True)
@@ -70,11 +71,17 @@ class ActionChunkExecutor(LeafSystem):
     first one), `action_chunk_stamp` (1-vector, sim time [s] of the chunk's observation),
     `robot_state` (18-vector, Panda q (7 arm [rad], 2 fingers [m]) then v [rad/s, m/s]; read at
     initialisation for the starting pose).
-    Outputs: `ee_target` (RigidTransform of `panda_hand_tcp`, world frame [m]), `gripper_target`
-    (1-vector, finger distance [m]), `action` (7-vector, the action applied at the last tick).
+    Outputs: `ee_target` (RigidTransform X_WT: pose of `panda_hand_tcp` in the world [m]),
+    `gripper_target` (1-vector, finger distance [m]), `action` (7-vector, the action applied at the
+    last tick).
     Every 1 / control_rate_hz seconds (36 Hz), at offset_s + n / control_rate_hz, it applies one
     action (see trivla_drake/action.py for the action space); with no chunk covering the time, it holds
     the commanded pose.
+
+    The actions, the workspace box and the commanded pose in the state are in the robot's base frame
+    B (`panda_link0`), so the same actions move the hand the same way relative to its base wherever the
+    base stands; `X_WB` (the base's pose in the world, identity by default) maps the commanded pose
+    X_BT to the world for `ee_target`: X_WT = X_WB X_BT.
     """
 
     def __init__(
@@ -85,6 +92,7 @@ class ActionChunkExecutor(LeafSystem):
         keep_chunks: int = 4,
         kinematics: PandaKinematics | None = None,
         offset_s: float = 0.0,
+        X_WB: RigidTransform | None = None,
     ):
         super().__init__()
         if ensemble_decay is not None and not (math.isfinite(ensemble_decay) and ensemble_decay >= 0):
@@ -97,6 +105,8 @@ class ActionChunkExecutor(LeafSystem):
         self._decay = ensemble_decay
         self._keep = keep_chunks if ensemble_decay is not None else 1
         self._kinematics = kinematics or PandaKinematics()
+        # None at the identity: the commanded pose is output as it is, bit for bit (no matmul).
+        self._X_WB = base_pose_matrix(X_WB, "X_WB")
         self._chunk = self.DeclareAbstractInputPort("action_chunk", AbstractValue.Make(None))
         self._stamp = self.DeclareVectorInputPort("action_chunk_stamp", 1)
         self._robot_state = self.DeclareVectorInputPort("robot_state", 18)
@@ -150,10 +160,10 @@ class ActionChunkExecutor(LeafSystem):
 
     def _calc_target(self, context, output):
         vector = context.get_discrete_state(self._pose_index).value()
-        X = np.eye(4)
-        X[:3, 3] = vector[:3]
-        X[:3, :3] = vector[3:12].reshape(3, 3)
-        output.set_value(RigidTransform(X))
+        X_BT = np.eye(4)
+        X_BT[:3, 3] = vector[:3]
+        X_BT[:3, :3] = vector[3:12].reshape(3, 3)
+        output.set_value(RigidTransform(X_BT if self._X_WB is None else self._X_WB @ X_BT))
 
     def _calc_width(self, context, output: BasicVector):
         output.SetAtIndex(0, context.get_discrete_state(self._pose_index).value()[12])

@@ -9,6 +9,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from trivla_drake.systems.action_executor import DEFAULT_ACTION_SPACE
+from trivla_drake.systems.robot_base import base_pose_matrix
 
 _AXES = (
     (RotationMatrix.MakeYRotation(np.pi / 2), [1, 0, 0], Rgba(0.9, 0.1, 0.1, 1)),
@@ -17,11 +18,13 @@ _AXES = (
 )
 
 
-def chunk_path(start: np.ndarray, chunk: np.ndarray, horizon: int = 10) -> np.ndarray:
-    """Points (horizon, 3) the chunk's translations trace from `start` [m], each step clipped to the
-    action bounds as the executor clips them."""
+def chunk_path(start: np.ndarray, chunk: np.ndarray, horizon: int = 10, R_WB: np.ndarray | None = None) -> np.ndarray:
+    """Points (horizon, 3) in the world [m] the chunk's translations trace from `start` (world), each step clipped
+    to the action bounds as the executor clips them; the translations are in the robot's base frame, turned into
+    the world by `R_WB` (the base's orientation; None: the base is unrotated)."""
     low, high = DEFAULT_ACTION_SPACE.low[:3], DEFAULT_ACTION_SPACE.high[:3]
-    return np.asarray(start) + np.cumsum(np.clip(np.asarray(chunk)[:horizon, :3], low, high), axis=0)
+    steps = np.cumsum(np.clip(np.asarray(chunk)[:horizon, :3], low, high), axis=0)
+    return np.asarray(start) + (steps if R_WB is None else steps @ np.asarray(R_WB).T)
 
 
 class PolicyMeshcatVisualizer(LeafSystem):
@@ -29,13 +32,16 @@ class PolicyMeshcatVisualizer(LeafSystem):
 
     Inputs: `ee_target` (RigidTransform of the tcp in the world [m]), `action_chunk` (abstract float
     numpy (H, 7) or None; the first `horizon` rows are drawn). The chunk is drawn as the path its
-    translations trace from the current target. Poses are also written into a Meshcat recording
+    translations trace from the current target (`X_WB`: the robot base's pose in the world, as given to the
+    policy; the chunk's translations are in the base frame). Poses are also written into a Meshcat recording
     when one is running, so saved pages show them.
     """
 
     def __init__(self, meshcat: Meshcat, *, period_s: float = 1.0 / 30.0, prefix: str = "trivla",
-                 horizon: int = 10, triad_length: float = 0.06):
+                 horizon: int = 10, triad_length: float = 0.06, X_WB: RigidTransform | None = None):
         super().__init__()
+        X_WB_matrix = base_pose_matrix(X_WB, "X_WB")
+        self._R_WB = None if X_WB_matrix is None else X_WB_matrix[:3, :3]
         self._meshcat = meshcat
         self._prefix = prefix
         self._horizon = horizon
@@ -57,5 +63,5 @@ class PolicyMeshcatVisualizer(LeafSystem):
         chunk = self._chunk.Eval(context) if self._chunk.HasValue(context) else None
         if chunk is None:
             return
-        for k, point in enumerate(chunk_path(X_WT.translation(), chunk, self._horizon)):
+        for k, point in enumerate(chunk_path(X_WT.translation(), chunk, self._horizon, self._R_WB)):
             self._meshcat.SetTransform(f"{self._prefix}/chunk/{k}", RigidTransform(point), time_in_recording=t)

@@ -7,11 +7,22 @@ Ports (stable whatever systems the model keeps):
     instruction     str, the task in natural language (read at each System 2 / 3 update)
     robot_state     18-vector, Panda q (7 arm [rad], 2 fingers [m]) then v [rad/s, m/s]
   outputs
-    ee_target       RigidTransform of `panda_hand_tcp` in the world [m], for DifferentialIKSystem
+    ee_target       RigidTransform X_WT: pose of `panda_hand_tcp` in the WORLD [m] (X_WB times the commanded
+                    pose in the robot's base frame), for DifferentialIKSystem (given the same X_WB)
     gripper_target  1-vector, finger distance [m], for the station's `panda.gripper_width`
-    action_chunk    float32 numpy (action_horizon, 7), 10 for the presets: System 1's latest chunk
-                    (None before the first)
-    q_vl, q_p       System 2's and System 3's latest outputs (None when dropped or not yet run)
+    action_chunk    float32 numpy (action_horizon, 7), 10 for the presets: System 1's latest chunk of actions
+                    [dx, dy, dz [m], drx, dry, drz [rad], gripper] in the robot's BASE frame (None before the first)
+    q_vl            System 2's latest output: float32 numpy (tokens, LLM width), the LLM's middle-layer hidden
+                    states; the tokens are the images' and the prompt's, so their number varies with the
+                    instruction: (173, 192) for the shipped model and "pick up the red block" (None before the
+                    first, and always without System 2)
+    q_p             System 3's latest output: dict {"static", "wrist"} of float32 numpy (frames, channels, H_p, W_p),
+                    its up-sampling features, (5, 128, 8, 8) each for the shipped model (None before the first,
+                    and always without System 3)
+
+The robot's base pose in the world, X_WB (identity by default; `robot_base_pose(plant, instance)` reads it
+from a plant), is fixed when the policy is built: the actions and the model's tool-centre point are
+robot-centric (base frame), only `ee_target` is expressed in the world.
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, PassThrough
 from pydrake.systems.sensors import ImageRgba8U
@@ -94,9 +106,11 @@ SEED_OFFSETS = {"policy": 0, "vision_language": 1, "dynamics": 2}
 
 
 class TriVLAPolicy(Diagram):
-    """The whole TriVLA policy as a Drake Diagram (see the module docstring for its ports)."""
+    """The whole TriVLA policy as a Drake Diagram (see the module docstring for its ports and frames); `X_WB` is
+    the robot base's pose in the world (identity: the base at the origin)."""
 
-    def __init__(self, model: TriVLA, rates: PolicyRates | None = None, *, seed: int = 0):
+    def __init__(self, model: TriVLA, rates: PolicyRates | None = None, *, seed: int = 0,
+                 X_WB: RigidTransform | None = None):
         super().__init__()
         rates = rates or PolicyRates()
         rates.validate()
@@ -149,7 +163,7 @@ class TriVLAPolicy(Diagram):
         executor = builder.AddNamedSystem(
             "action_chunk_executor",
             ActionChunkExecutor(rates.action_space, ensemble_decay=rates.ensemble_decay, keep_chunks=keep_chunks,
-                                offset_s=3 * rates.stage_offset_s),
+                                offset_s=3 * rates.stage_offset_s, X_WB=X_WB),
         )
         builder.Connect(policy.GetOutputPort("action_chunk"), executor.GetInputPort("action_chunk"))
         builder.Connect(policy.GetOutputPort("action_chunk_stamp"), executor.GetInputPort("action_chunk_stamp"))
