@@ -88,7 +88,7 @@ def test_probe_cli_errors_name_the_problem(saved, tmp_path, capsys):
     assert main(["probe", "--data", data, "--checkpoint", checkpoint, "--episodes", "5"]) == 2
     assert "--episodes must be at least 10" in capsys.readouterr().err
     assert main(["probe", "--data", data, "--checkpoint", checkpoint, "--attention-steps", "-1"]) == 2
-    assert "--attention-steps must be >= 0" in capsys.readouterr().err
+    assert "--attention-steps must be at least 0 and at most 100000" in capsys.readouterr().err
     assert main(["probe", "--data", data, "--checkpoint", checkpoint]) == 2
     assert "not written by `collect`" in capsys.readouterr().err
     assert main(["probe", "--data", str(tmp_path / "missing"), "--checkpoint", checkpoint]) == 2

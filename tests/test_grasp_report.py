@@ -56,7 +56,7 @@ def test_a_grounded_model_gets_its_subgoal_recorded_per_chunk(tmp_path, capsys):
     assert recorder.subgoal_at(0)[0] == 0 and recorder.subgoal_at(9)[0] == 0 and recorder.subgoal_at(10)[0] == 1
     save_checkpoint(model, tmp_path / "grounded")
     assert main(["probe", "--checkpoint", str(tmp_path / "grounded"), "--grasp-episodes", "-1"]) == 2
-    assert "--grasp-episodes must be >= 0" in capsys.readouterr().err
+    assert "--grasp-episodes must be at least 0 and at most 100000" in capsys.readouterr().err
 
 
 def test_bad_settings_are_refused_naming_the_field():

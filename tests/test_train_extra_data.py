@@ -13,7 +13,7 @@ from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_st
 from trivla_drake.nn import load_checkpoint
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.cli_commands import main
-from trivla_drake.train.dataset_union import PolicyDatasetUnion, drop_repeated_episodes, episode_content_key
+from trivla_drake.train.dataset_union import PolicyDatasetUnion, drop_repeated_episodes, episode_row_key
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
@@ -43,13 +43,13 @@ class _MovedReader:
             self.episodes.append(moved)
 
 
-def test_an_episode_stored_elsewhere_keeps_its_content_key_and_other_content_changes_it(folders):
+def test_an_episode_stored_elsewhere_keeps_its_row_key_and_other_content_changes_it(folders):
     a = LeRobotReader(folders["a"])
     moved = _MovedReader(a, shift=7)
-    assert [episode_content_key(moved, e) for e in range(3)] == [episode_content_key(a, e) for e in range(3)]
-    assert len({episode_content_key(a, e) for e in range(3)}) == 3
+    assert [episode_row_key(moved, e) for e in range(3)] == [episode_row_key(a, e) for e in range(3)]
+    assert len({episode_row_key(a, e) for e in range(3)}) == 3
     moved.episodes[1]["stats/action/mean"] = [v + 1e-3 for v in moved.episodes[1]["stats/action/mean"]]
-    assert episode_content_key(moved, 1) != episode_content_key(a, 1)
+    assert episode_row_key(moved, 1) != episode_row_key(a, 1)
 
 
 def test_repeated_episodes_are_kept_once_in_the_first_folder(folders):
@@ -189,7 +189,7 @@ def test_a_resume_on_other_folders_is_refused_naming_them(folders, tmp_path):
     assert (resumed["resumed_from_step"], resumed["steps"]) == (2, 4)
 
 
-def test_an_episode_keeps_its_content_key_whether_its_unused_settings_are_written_or_not():
+def test_an_episode_keeps_its_row_key_whether_its_unused_settings_are_written_or_not():
     """Rows written before session 66 leave unused settings out; newer rows write their defaults: the same episode."""
     from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS
 
@@ -200,5 +200,5 @@ def test_an_episode_keeps_its_content_key_whether_its_unused_settings_are_writte
     old = {"episode_index": 0, "trivla/task": "lift_block", "trivla/seed": 7, "trivla/params": ["red"]}
     new = {**old, **EPISODE_COLUMN_DEFAULTS}
     other = {**new, "trivla/stacked_pick": True}
-    keys = [episode_content_key(Rows(row), 0) for row in (old, new, other)]
+    keys = [episode_row_key(Rows(row), 0) for row in (old, new, other)]
     assert keys[0] == keys[1] != keys[2]

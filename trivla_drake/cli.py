@@ -199,6 +199,16 @@ def _names(comma_separated: str) -> list[str]:
     return [name.strip() for name in comma_separated.split(",") if name.strip()]
 
 
+def _seeds(comma_separated: str) -> tuple[int, ...]:
+    """`tables --seeds`: the integers of a comma-separated list such as '1000,1001,1002'; else ValueError naming the
+    flag (their range is TablesConfig's to check)."""
+    try:
+        return tuple(int(seed) for seed in comma_separated.split(","))
+    except ValueError:
+        raise ValueError(f"--seeds must be comma-separated integer base seeds, e.g. 1000,1001,1002; got "
+                         f"{comma_separated!r}") from None
+
+
 def _cmd_tables(args) -> int:
     from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
 
@@ -210,7 +220,7 @@ def _cmd_tables(args) -> int:
     checkpoints = {role: path for role, path in (("full", args.full), ("system1_3", args.system1_3),
                                                  ("system1", args.system1), ("data10", args.data10)) if path}
     config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
-                          seeds=tuple(int(s) for s in args.seeds.split(",")), workers=args.workers,
+                          seeds=_seeds(args.seeds), workers=args.workers,
                           max_steps=args.max_steps, latency_episodes=args.latency_episodes,
                           noise_scale=args.noise_scale, execute_steps=args.execute_steps,
                           ensemble_decay=args.ensemble_decay, threads=args.threads,
@@ -232,13 +242,14 @@ def _cmd_tables(args) -> int:
 
 def _cmd_probe(args) -> int:
     from trivla_drake.data.lerobot import LeRobotReader
+    from trivla_drake.eval.evaluate import check_episode_count
     from trivla_drake.eval.feature_probe import format_probe_table, probe_block_positions
     from trivla_drake.eval.model_loading import load_model
 
-    if args.grounding_scenes < 0:
-        raise ValueError(f"--grounding-scenes must be >= 0, got {args.grounding_scenes}")
-    if args.grasp_episodes < 0:
-        raise ValueError(f"--grasp-episodes must be >= 0, got {args.grasp_episodes}")
+    # Counts of runs or steps, bounded as `evaluate`'s episodes are, before any model loads.
+    check_episode_count(args.grounding_scenes, "--grounding-scenes", minimum=0)
+    check_episode_count(args.grasp_episodes, "--grasp-episodes", minimum=0)
+    check_episode_count(args.attention_steps, "--attention-steps", minimum=0)
     if args.drive is not None and not args.grounding_scenes:
         raise ValueError("--drive chooses whose trajectories --grounding-scenes follows: it needs --grounding-scenes")
     if args.grasp_episodes:
@@ -267,8 +278,6 @@ def _cmd_probe(args) -> int:
                          "--grounding-scenes or --grasp-episodes)")
     if args.episodes is not None and args.episodes < 10:
         raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
-    if args.attention_steps < 0:
-        raise ValueError(f"--attention-steps must be >= 0, got {args.attention_steps}")
     _set_torch_threads(args.threads)
     reader = LeRobotReader(args.data)
     model = load_model(args.checkpoint)

@@ -67,7 +67,15 @@ class TablesConfig:
 
     def validate(self) -> None:
         from trivla_drake.tasks import get_task
+        from trivla_drake.tasks.suite import check_seed
 
+        if not self.seeds:
+            raise ValueError("--seeds is empty: give one or more comma-separated base seeds, e.g. 1000,1001,1002")
+        for seed in self.seeds:
+            check_seed(seed, "--seeds")  # evaluate's range for its --seed, before anything runs
+        repeated = sorted({seed for seed in self.seeds if self.seeds.count(seed) > 1})
+        if repeated:
+            raise ValueError(f"--seeds names {repeated} more than once (each seed is one sample of the stderr)")
         for name in [*self.tasks, *self.latency_tasks]:
             get_task(name)  # ValueError naming the unknown task
         unknown = sorted(set(self.checkpoints) - set(ROLES))
@@ -78,8 +86,8 @@ class TablesConfig:
         for role, path in self.checkpoints.items():
             if not (Path(path) / "config.json").exists():
                 raise ValueError(f"--{role.replace('_', '-')} {path} is not a checkpoint directory (no config.json)")
-        if not self.seeds or self.episodes < 1:
-            raise ValueError("seeds must be non-empty and episodes >= 1")
+        if self.episodes < 1:
+            raise ValueError(f"--episodes must be at least 1, got {self.episodes}")
         # TriVLA's inference settings get `evaluate`'s checks (the chunk length is checked when each
         # checkpoint loads).
         EvalConfig(policy="trivla", tasks=list(self.tasks), episodes=self.episodes, chains=self.chains,

@@ -553,6 +553,14 @@ STACKED_PICK_TASKS = ("lift_block", "place_in_bowl", "stack_block")
 MAX_SEED = 2**32 - 1
 
 
+def check_seed(seed: int, flag: str = "--seed") -> int:
+    """`seed` if it is an integer from 0 to MAX_SEED; else ValueError naming `flag`."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"{flag} must be an integer from 0 to {MAX_SEED} (a 32-bit seed; a larger one would wrap "
+                         f"onto another's scenes), got {seed!r}")
+    return seed
+
+
 def check_run_settings(tasks: list[str], seed: int, stacked_picks: bool | float) -> None:
     """What `collect` and `evaluate` both refuse, naming the flag: an unknown task, a task named twice (the same
     seeds twice), a seed outside 0..MAX_SEED, or --stacked-picks without any task it applies to."""
@@ -561,9 +569,7 @@ def check_run_settings(tasks: list[str], seed: int, stacked_picks: bool | float)
     repeated = sorted(name for name in set(tasks) if tasks.count(name) > 1)
     if repeated:
         raise ValueError(f"--tasks names {repeated} more than once")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"--seed must be an integer from 0 to {MAX_SEED} (a 32-bit seed; a larger one would wrap "
-                         f"onto another's scenes), got {seed!r}")
+    check_seed(seed)
     if stacked_picks and tasks and not set(tasks) & set(STACKED_PICK_TASKS):
         raise ValueError(f"--stacked-picks applies to {', '.join(STACKED_PICK_TASKS)}; --tasks has none of them")
 

@@ -29,6 +29,9 @@ STAGE_DEFAULTS: dict[str, dict[str, Any]] = {
     "policy": {"batch_size": 32, "lr": 1e-4, "steps": 10000},
 }
 
+# Seeds `train` takes: numpy's generators take no negative seed, torch.manual_seed none above 64 bits.
+SEEDS = range(0, 2**64)
+
 # Fields that may differ between a run and the run it resumes (they do not change what is learned).
 RESUMABLE_CHANGES = frozenset(
     {"steps", "checkpoint_every", "keep_checkpoints", "resume", "workers", "progress", "log_every", "threads",
@@ -302,6 +305,9 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) is None or getattr(self, name) < 1:
                 raise ValueError(f"{named(name)} must be >= 1; got {getattr(self, name)}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed not in SEEDS:
+            raise ValueError(f"{named('seed')} must be an integer from {SEEDS.start} to {SEEDS.stop - 1} (what torch "
+                             f"and numpy seeding take); got {self.seed!r}")
         if self.lr is None or not self.lr > 0:
             raise ValueError(f"{named('lr')} must be > 0; got {self.lr}")
         if not 0 < self.fraction <= 1:

@@ -1,7 +1,8 @@
 """Training the policy stage on several LeRobot datasets at once (`--data A --extra-data B ...`).
 
 - `episode_content_key`: what an episode is, without where it lies in its folder (its index, its file and
-  frame offsets): two folders collected with the same seed hold equal episodes under different indices.
+  frame offsets): two folders collected with the same seed hold equal episodes under different indices. It
+  hashes the metadata row (`episode_row_key`), the frames and the videos, so a replaced episode file is a new episode.
 - `drop_repeated_episodes`: each episode once, the first folder's copy kept; `check_each_folder_adds`.
 - `check_same_features`: every folder records the same non-video features (a batch mixes their samples).
 - `union_normalization`: the state and action statistics of all the folders together, each episode once
@@ -26,9 +27,12 @@ from trivla_drake.nn.normalization import NormalizationStats
 # Episode metadata that says where an episode is stored, not what it holds.
 _LOCATING_KEYS = ("episode_index", "dataset_from_index", "dataset_to_index")
 _LOCATING_PREFIXES = ("data/", "videos/", "meta/", "stats/episode_index/", "stats/index/", "stats/task_index/")
+# The frame columns that say where an episode is stored (its index, its frames' indices in the folder, its task's
+# index in meta/tasks), not what it holds.
+_LOCATING_COLUMNS = ("episode_index", "index", "task_index")
 
 
-def episode_content_key(reader: LeRobotReader, episode: int) -> str:
+def episode_row_key(reader: LeRobotReader, episode: int) -> str:
     """A hash of episode `episode`'s metadata row without the entries that locate it in its folder
     (index, files, offsets, and the statistics of the index columns): equal for the same episode
     written into two folders."""
@@ -38,9 +42,32 @@ def episode_content_key(reader: LeRobotReader, episode: int) -> str:
     return hashlib.sha256(json.dumps(row, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def episode_content_key(reader: LeRobotReader, episode: int) -> str:
+    """A hash of what episode `episode` holds, not where it lies in its folder: its metadata row
+    (`episode_row_key`), its frames without the columns that locate them, and the sha256 of its videos (an
+    episode's own mp4 files, as `collect` writes them; `episode_digests` checks its files against the dataset's
+    recorded checksums first). Equal for the same episode written into two folders; a file of it replaced (its
+    checksums recorded again, its metadata row kept) makes it another episode.
+
+    Not `episode_content_fingerprint` (the feature cache's name of an episode): that hashes the episode's index,
+    and its data file, which records the index in every frame, so the same episode at another index would differ.
+    """
+    digests = reader.episode_digests(episode)
+    hasher = hashlib.sha256(episode_row_key(reader, episode).encode())
+    frames = reader.episode_frames(episode)
+    for name in sorted(set(frames) - set(_LOCATING_COLUMNS)):
+        column = np.ascontiguousarray(frames[name])
+        hasher.update(f"{name}:{column.dtype.str}:{column.shape}:".encode() + column.tobytes())
+    for path in reader.episode_files(episode)[1:]:  # the data file first, then one video per camera
+        hasher.update(digests[path].encode())
+    return hasher.hexdigest()[:16]
+
+
 def drop_repeated_episodes(readers: list[LeRobotReader], episodes: list[list[int]]) -> tuple[list[list[int]], int]:
     """`episodes` (one list per reader) without the episodes an earlier reader's list already holds
     (`episode_content_key`; a folder's own episodes are all kept), and how many were dropped."""
+    if len(readers) == 1:
+        return [list(chosen) for chosen in episodes], 0  # nothing earlier to repeat
     seen: set[str] = set()
     kept: list[list[int]] = []
     for reader, chosen in zip(readers, episodes):
