@@ -296,7 +296,7 @@ def test_grounding_check_asks_every_colour_in_unseen_scenes_and_names_bad_input(
     assert main(["probe", "--checkpoint", str(tmp_path / "grounded")]) == 2
     assert "--data is required" in capsys.readouterr().err
     assert main(["probe", "--checkpoint", str(tmp_path / "grounded"), "--grounding-scenes", "-1"]) == 2
-    assert "--grounding-scenes must be >= 0" in capsys.readouterr().err
+    assert "--grounding-scenes must be at least 0 and at most 100000" in capsys.readouterr().err
 
 
 def test_the_approach_check_raises_what_the_model_raises(monkeypatch):

@@ -72,8 +72,11 @@ def test_resume_with_another_preset_or_a_corrupt_state(setup, capsys, tmp_path):
     assert "cannot resume: preset (--preset) was 'tiny'" in capsys.readouterr().err
     state = out / "final" / "training_state.pt"
     state.write_bytes(state.read_bytes()[:100])
-    assert _train(setup, out, "--resume", "--steps", "3") == 2
-    assert "training_state.pt is truncated or corrupt" in capsys.readouterr().err
+    # A truncated newest checkpoint is skipped, said, and kept: the run resumes from the newest intact one.
+    assert _train(setup, out, "--resume", "--steps", "3") == 0
+    err = capsys.readouterr().err
+    assert "training_state.pt is truncated or corrupt" in err and "resuming from the newest intact one" in err
+    assert (out / "final.unreadable" / "training_state.pt").stat().st_size == 100
 
 
 def test_not_a_dataset_and_a_missing_init(setup, capsys, tmp_path):
