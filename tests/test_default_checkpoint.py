@@ -52,13 +52,13 @@ def test_shipped_checkpoint_solves_a_training_task_on_an_unseen_scene():
 
 
 def test_the_shipped_checkpoints_stored_tables_are_its_own(monkeypatch):
-    """results/grounding_scenes/tables/report.md (reproduce step 46; results/report.md joins it with the soup's arms)
+    """results/shipped_tables/report.md (the recipe's `tables` stage; results/report.md joins it with the soup's arms)
     must come from models/trivla_cpu: every evaluation it needs is found in results/evaluations/ under this
     checkpoint's contents (nothing is run), and gives its figures."""
     from trivla_drake.eval import paper_tables
 
     results = Path(__file__).resolve().parents[1] / "results"
-    report = json.loads((results / "grounding_scenes" / "tables" / "report.json").read_text())
+    report = json.loads((results / "shipped_tables" / "report.json").read_text())
     settings = report["config"]
     config = paper_tables.TablesConfig(
         checkpoints={"full": str(default_checkpoint_dir())}, tasks=settings["tasks"], episodes=settings["episodes"],
