@@ -102,19 +102,3 @@ def saved(tmp_path_factory):
     )
     save_checkpoint(model, directory)
     return model, directory
-
-
-@pytest.fixture
-def results_script():
-    """Loads a script of results/ (they are run as files, not imported as a package): results_script("a/b.py")."""
-    import importlib.util
-    from pathlib import Path
-
-    def load(relative: str):
-        path = Path(__file__).resolve().parents[1] / "results" / relative
-        spec = importlib.util.spec_from_file_location(path.stem, path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
-
-    return load

@@ -81,3 +81,30 @@ def test_noisy_collection_records_disturbed_frames(tmp_path):
     assert len(disturbed) > 0 and max(disturbed) < episode["length"]
     samples = TrainingSamples(out, cameras=[])
     assert any(samples[t]["action_is_stale"].any() for t in disturbed)
+
+
+def test_dart_is_a_registered_perturbation_and_an_unknown_name_lists_the_registered_ones():
+    """`make_perturbation("dart", scale=x)` is collect's --action-noise x; a name not registered is refused, naming
+    the registered ones; a name registered twice is refused."""
+    from trivla_drake.eval.collect import CollectConfig
+    from trivla_drake.eval.perturbations import PERTURBATIONS, make_perturbation, register_perturbation
+
+    assert make_perturbation("dart", scale=2.0) == PerturbationBursts.scaled(2.0)
+    assert CollectConfig(out="unused", episodes_per_task=1, action_noise=2.0).disturbance() == make_perturbation(
+        "dart", scale=2.0)
+    assert CollectConfig(out="unused", episodes_per_task=1).disturbance() is None
+    with pytest.raises(ValueError, match=r"unknown perturbation 'dartt'; registered: .*dart"):
+        make_perturbation("dartt")
+    with pytest.raises(ValueError, match="'dart' is registered already"):
+        register_perturbation("dart")(lambda: None)
+    assert "dart" in PERTURBATIONS.names()
+
+
+def test_run_episode_takes_one_perturbation_object():
+    """A perturbation (what the registry makes) disturbs the applied actions of an episode and marks those frames."""
+    from trivla_drake.eval.episode import run_episode
+    from trivla_drake.tasks.oracle import OraclePolicy
+
+    result = run_episode("turn_on_light", 0, OraclePolicy(), keep_trajectory=True, max_steps=5,
+                         perturbation=PerturbationBursts(rate=1.0, min_steps=1, max_steps=1))
+    assert len(result.trajectory.perturbed) == 5 and all(result.trajectory.perturbed)

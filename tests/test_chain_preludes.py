@@ -53,34 +53,14 @@ def test_the_episode_starts_where_the_prelude_left_the_hand():
     assert len(chained.trajectory) == chained.steps  # only the episode's own task is recorded
 
 
-def test_a_prelude_with_nothing_to_run_fails_the_episode_with_the_reason():
-    from trivla_drake.eval.episode import run_episode
+def test_a_prelude_with_nothing_to_run_fails_the_episode_with_the_reason(monkeypatch):
+    from trivla_drake.eval import episode
     from trivla_drake.tasks.oracle import OraclePolicy
 
-    result = run_episode("open_drawer", 3, OraclePolicy(), prelude=2, prelude_policy=OraclePolicy(),
-                         prelude_draw=lambda scene, rng, exclude: None)
+    monkeypatch.setattr(episode, "prelude_task", lambda scene, rng, exclude: None)  # no task possible
+    result = episode.run_episode("open_drawer", 3, OraclePolicy(), prelude=2, prelude_policy=OraclePolicy())
     assert not result.success and result.steps == 0
     assert result.reason.startswith("prelude: no task can run")
-
-
-def test_a_prelude_drawer_chooses_the_prelude_tasks():
-    """`run_episode(prelude_draw=...)`: the prelude runs the task it draws, with the tasks done so far excluded."""
-    from trivla_drake.eval.episode import run_episode
-    from trivla_drake.tasks.oracle import OraclePolicy
-    from trivla_drake.tasks.suite import TASKS, TaskInstance
-
-    excluded = []
-
-    def drawer_first(scene, rng, exclude):
-        excluded.append(set(exclude))
-        name = next((n for n in ("open_drawer", "close_drawer") if n not in exclude and TASKS[n].candidates(scene)), None)
-        return None if name is None else TaskInstance(name, (), TASKS[name].instruction((), rng))
-
-    result = run_episode("turn_on_light", 123, OraclePolicy(), prelude=2, prelude_policy=OraclePolicy(),
-                         prelude_draw=drawer_first)
-    assert result.success, result.reason
-    assert sorted(result.prelude) == ["close_drawer", "open_drawer"]
-    assert excluded == [{"turn_on_light"}, {"turn_on_light", result.prelude[0]}]
 
 
 @pytest.mark.parametrize("prelude", [-1, 1.5, True])

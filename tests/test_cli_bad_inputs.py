@@ -237,7 +237,7 @@ def test_a_scenario_with_an_unknown_contact_model_is_refused_before_simulating(t
             "hydroelastic_with_fallback; got 'hydroelastik'") in err
 
 
-# ------------------------------------------------------------------ tables --seeds, probe counts, train --seed
+# ------------------------------------------------------------------ tables --seeds, train --seed
 
 TABLES = ["tables", "--full", str(SHIPPED), "--out", "{tmp}/tables"]
 TRAIN = ["train", "--stage", "policy", "--data", "{tmp}/data", "--out", "{tmp}/run"]
@@ -251,21 +251,13 @@ TRAIN = ["train", "--stage", "policy", "--data", "{tmp}/data", "--out", "{tmp}/r
     ([*TABLES, "--seeds", "1000,4294967296"], "--seeds must be an integer from 0 to 4294967295 (a 32-bit seed"),
     ([*TABLES, "--seeds=-1"], "--seeds must be an integer from 0 to 4294967295"),
     ([*TABLES, "--seeds", "1000,1001,1000"], "--seeds names [1000] more than once"),
-    (["probe", "--grasp-episodes", HUGE], "--grasp-episodes must be at least 0 and at most 100000"),
-    (["probe", "--grounding-scenes", HUGE], "--grounding-scenes must be at least 0 and at most 100000"),
-    (["probe", "--data", "{tmp}/data", "--attention-steps", HUGE], "--attention-steps must be at least 0 and at most"),
     ([*TRAIN, "--seed=-1"], "seed (--seed) must be an integer from 0 to 18446744073709551615 (what torch and numpy"),
     ([*TRAIN, "--seed", str(2**64)], "seed (--seed) must be an integer from 0 to 18446744073709551615"),
 ])
-def test_seeds_and_probe_counts_are_refused_before_anything_runs(argv, message, tmp_path, capsys, monkeypatch,
-                                                                  nothing_runs):
-    import trivla_drake.eval.grasp_report as grasp_report
-    import trivla_drake.eval.grounding_check as grounding_check
+def test_seeds_are_refused_before_anything_runs(argv, message, tmp_path, capsys, monkeypatch, nothing_runs):
     import trivla_drake.eval.policies as policies
 
-    for module, name in ((policies, "load_policy"), (grasp_report, "grasp_report"),
-                         (grounding_check, "grounding_check")):
-        monkeypatch.setattr(module, name, _must_not_run)  # probe's runs, which a huge count would keep running
+    monkeypatch.setattr(policies, "load_policy", _must_not_run)
     err = _refused(capsys, [a.replace("{tmp}", str(tmp_path)) for a in argv])
     assert message in err
     assert list(tmp_path.iterdir()) == []  # no tables, run or evaluations folder written

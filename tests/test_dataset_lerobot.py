@@ -216,3 +216,33 @@ def test_collected_episode_rows_share_one_schema(tmp_path):
     # Unused settings are written as EPISODE_COLUMN_DEFAULTS, which content keys leave out (dataset_union).
     for key, default in EPISODE_COLUMN_DEFAULTS.items():
         assert all(r[key] == default for r in rows), key
+    # The columns of removed collection experiments are no longer written.
+    from trivla_drake.data.lerobot import REMOVED_EPISODE_COLUMNS
+
+    assert not set(REMOVED_EPISODE_COLUMNS) & set(table.schema.names)
+
+
+def test_rows_without_the_removed_experiment_columns_keep_their_episode_keys():
+    """A row written now (no removed-experiment columns) hashes as the same collection written before the removal
+    (every column, the removed ones at their off values); a row from before session 66 (unused columns left out)
+    stays as it was; the union's content keys match old and new rows."""
+    from types import SimpleNamespace
+
+    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, REMOVED_EPISODE_COLUMNS, with_removed_columns
+    from trivla_drake.train.dataset_union import episode_row_key
+    from trivla_drake.train.datasets import episode_fingerprint
+
+    new = {"episode_index": 0, "length": 40, "trivla/task": "lift_block", **EPISODE_COLUMN_DEFAULTS}
+    before_removal = {**new, **REMOVED_EPISODE_COLUMNS}
+    older = {"episode_index": 0, "length": 40, "trivla/task": "lift_block"}
+    assert with_removed_columns(new) == before_removal and with_removed_columns(older) == older
+
+    def reader(row):
+        return SimpleNamespace(episodes=[row], features={}, camera_keys=[])
+
+    assert episode_fingerprint(reader(new), 0) == episode_fingerprint(reader(before_removal), 0)
+    assert episode_fingerprint(reader(older), 0) != episode_fingerprint(reader(new), 0)
+    assert episode_row_key(reader(new), 0) == episode_row_key(reader(before_removal), 0) == episode_row_key(
+        reader(older), 0)
+    turned_on = {**before_removal, "trivla/detours": 2}  # an experiment's episode stays another episode
+    assert episode_row_key(reader(turned_on), 0) != episode_row_key(reader(new), 0)

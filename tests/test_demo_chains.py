@@ -153,14 +153,3 @@ def test_cli_refuses_chains_with_other_settings(args, message, capsys):
 
     assert main(["demo", *args]) == 2  # before any model is loaded or simulation built
     assert message in capsys.readouterr().err
-
-
-def test_compare_pairs_the_diagram_s_chains_with_the_harness_s(tmp_path, results_script):
-    compare = results_script("demo_chains/compare.py")
-    (tmp_path / "demo_chains20_seed1003.json").write_text(json.dumps(
-        {"chain_runs": [{"completed": c} for c in (2, 0, 5)]}))
-    (tmp_path / "harness_chains20_seed1003.json").write_text(json.dumps(
-        {"chains": {"completed": [1, 0, 3], "tasks": [], "failures": []}}))
-    table = compare.main(str(tmp_path))
-    assert "| 1003 | 3 | 2.33 ± 1.45 | 1.33 ± 0.88 | +1.00 ± 0.58 | 2 / 0 |" in table
-    assert "| **all** | 3 |" in table

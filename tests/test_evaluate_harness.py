@@ -184,40 +184,6 @@ def test_chains_only_report_has_no_task_rows():
     assert "| succeeded / tried | 2 / 2 | 2 / 2 | 1 / 2 | 1 / 1 | 1 / 1 |" in table
 
 
-def test_chain_positions_pools_the_reports_and_refuses_one_without_positions(tmp_path, results_script):
-    """results/grounding_scenes/chain_positions.py sums `chains.by_position` over reports."""
-    from trivla_drake.eval.evaluate import summarize
-
-    script = results_script("grounding_scenes/chain_positions.py")
-    config = EvalConfig(policy="oracle", tasks=list(TASK_NAMES), episodes=0, chains=2)
-    one = summarize(config, [], [
-        {"seed": 1, "completed": 0, "reason": "stack_block: timeout", "subtasks": [{"task": "stack_block"}]},
-        {"seed": 2, "completed": 1, "reason": "lift_block: timeout",
-         "subtasks": [{"task": "open_drawer"}, {"task": "lift_block"}]}])
-    two = summarize(config, [], [
-        {"seed": 3, "completed": 1, "reason": "stack_block: timeout",
-         "subtasks": [{"task": "turn_on_light"}, {"task": "stack_block"}]}])
-    paths = []
-    for name, report in (("one", one), ("two", two)):
-        paths.append(tmp_path / f"{name}.json")
-        paths[-1].write_text(json.dumps(report))
-    table = script.main([str(p) for p in paths])
-    assert table.splitlines()[0] == "3 chains, Avg. Len 0.67"
-    assert "| 1 | 3 | 2 | 0.67 | stack_block 1 |" in table
-    assert "| 2 | 2 | 0 | 0.00 | lift_block 1, stack_block 1 |" in table and "| 3 | 0 | 0 | - | - |" in table
-    rates = tmp_path / "rates.json"  # an evaluate report: stack 1 of 2, lift 0 of 2, the others 2 of 2
-    rates.write_text(json.dumps({"tasks": {t: {"successes": {"stack_block": 1, "lift_block": 0}.get(t, 2), "episodes": 2}
-                                           for t in TASK_NAMES}}))
-    table = script.main([str(p) for p in paths] + ["--expected", f"from the start={rates}"])
-    assert "| position | tried | succeeded | rate | expected from the start | failed tasks |" in table
-    assert "| 1 | 3 | 2 | 0.67 | 2.5 | stack_block 1 |" in table  # stack 0.5 + open 1 + turn on 1
-    assert "| 2 | 2 | 0 | 0.00 | 0.5 | lift_block 1, stack_block 1 |" in table
-    del two["chains"]["by_position"]
-    paths[1].write_text(json.dumps(two))
-    with pytest.raises(ValueError, match="two.json: no chains.by_position"):
-        script.main([str(p) for p in paths])
-
-
 def test_chains_take_evaluates_max_steps_as_single_episodes_do():
     """`evaluate --max-steps N --chains K`: every chain task gets N steps, so a capped run caps Avg. Len too."""
     config = EvalConfig(policy="oracle", tasks=[], chains=1, max_steps=3, seed=5)

@@ -119,25 +119,6 @@ def test_evaluate_cli_prints_the_lasting_column(capsys):
     assert "still a success after 0.2 s held" in out and "| turn_on_light | 1.000 | 0.000 | 1.000 | 0.000 | 1 |" in out
 
 
-def test_the_chain_comparison_pairs_each_chain(tmp_path, results_script):
-    """results/hold_check/compare.py: the same chains without and with the hold, paired chain by chain."""
-    script = results_script("hold_check/compare.py")
-    plain, hold = tmp_path / "plain", tmp_path / "hold"
-    plain.mkdir()
-    hold.mkdir()
-    tasks = [["stack_block", "open_drawer", "lift_block"], ["turn_on_light", "lift_block"]]
-    (plain / "harness_chains20_seed1003.json").write_text(json.dumps({"chains": {"completed": [1, 1], "tasks": tasks}}))
-    (hold / "chains20_hold0.5_seed1003.json").write_text(json.dumps(
-        {"chains": {"completed": [2, 1], "completed_lasting": [0, 1], "tasks": tasks}}))
-    table = script.main(hold, plain)
-    assert "| 1003 | 2 | 1.00 ± 0.00 | 1.50 ± 0.50 | 0.50 ± 0.50 | +0.50 ± 0.50 | 1 / 0 (p 1.00) | -1.00 ± 1.00 | 1 |" in table
-    assert "first success that did not last, per chain: stack_block 1" in table
-    assert script.sign_test(32, 17) == pytest.approx(0.0444, abs=1e-4) and script.sign_test(0, 0) == 1.0
-    # A report from before the summary listed each chain's lasting count is left out, not misread.
-    (hold / "chains20_hold0.5_seed1003.json").write_text(json.dumps({"chains": {"completed": [2, 1], "tasks": tasks}}))
-    assert "1003" not in script.main(hold, plain)
-
-
 def test_a_simulation_failure_in_the_hold_keeps_the_success(monkeypatch):
     """The success was counted when the predicate first held; a simulation failing during the hold makes it one that
     did not last, and ends a chain after counting it."""
@@ -174,22 +155,3 @@ def test_the_hold_adds_video_frames_and_no_trajectory_rows(monkeypatch):
     assert len(held.trajectory) == len(plain.trajectory) == 1  # the policy's one step, the hold's none
     assert len(frames[1]) == 2 and len(frames[0]) == 2 + 9  # before and after the step; the hold's 9 steps between
     assert (frames[0][0] == frames[1][0]).all()
-
-
-def test_the_audit_comparison_names_episodes_the_audit_lacks(tmp_path, results_script):
-    script = results_script("hold_check/compare.py")
-    from trivla_drake.eval.episode import derive_seed
-
-    audit, hold = tmp_path / "audit", tmp_path / "hold"
-    audit.mkdir()
-    hold.mkdir()
-    rows = [{"task": "stack_block", "seed": derive_seed(1000, "stack_block", i), "success": True,
-             "success_after_hold": i == 0} for i in range(2)]
-    (audit / "shipped_seeds1000-1017.json").write_text(json.dumps({"rows": rows}))
-    tasks = {"stack_block": {"successes": 2, "lasting_successes": 1},
-             "lift_block": {"successes": 1, "lasting_successes": 1}}
-    (hold / "tasks_hold0.5_seed1000.json").write_text(json.dumps({"seed": 1000, "episodes_per_task": 2,
-                                                                   "tasks": tasks}))
-    table = script.tasks_against_audit(hold, audit)
-    assert "| 1000 | stack_block | 2 / 2 | 1 / 1 |" in table
-    assert "| 1000 | lift_block | 1 / not in the audit | 1 / not in the audit |" in table

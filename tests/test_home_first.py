@@ -193,7 +193,7 @@ def test_bad_settings_are_refused_by_name():
     with pytest.raises(ValueError, match="oracle"):
         HomeFirst(OraclePolicy())
     with pytest.raises(ValueError, match="--home-first"):
-        EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, home_first=True).validate()
+        EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, policy_wrappers=["home_first"]).validate()
 
 
 def test_the_cli_flag_wraps_the_policy_and_refuses_the_oracle(capsys):
@@ -203,7 +203,21 @@ def test_the_cli_flag_wraps_the_policy_and_refuses_the_oracle(capsys):
     assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block", "--episodes", "1", "--home-first",
                  "--no-progress"]) == 2
     assert "--home-first applies to learned policies" in capsys.readouterr().err
-    config = EvalConfig(policy="random", tasks=["lift_block"], episodes=1, home_first=True)
+    config = EvalConfig(policy="random", tasks=["lift_block"], episodes=1, policy_wrappers=["home_first"])
     wrapped = _policy(*config.policy_key())
     assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
     assert not isinstance(_policy("random"), HomeFirst)
+
+
+def test_home_first_is_a_registered_policy_wrapper_and_unknown_wrappers_are_named():
+    """The wrapper list of `evaluate` names registered policy wrappers; an unknown one is refused listing them."""
+    from trivla_drake.eval.evaluate import EvalConfig
+    from trivla_drake.eval.policies import load_policy
+    from trivla_drake.eval.policy_wrappers import POLICY_WRAPPERS, wrap_policy
+
+    assert "home_first" in POLICY_WRAPPERS.names()
+    wrapped = wrap_policy(load_policy("random"), ["home_first"])
+    assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
+    assert wrap_policy(wrapped, []) is wrapped
+    with pytest.raises(ValueError, match=r"unknown policy wrapper 'home_frist'; registered: home_first"):
+        EvalConfig(policy="random", tasks=["lift_block"], episodes=1, policy_wrappers=["home_frist"]).validate()

@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from trivla_drake.nn.checkpoint import load_checkpoint
-from trivla_drake.nn.config import FIELDS_OLDER_CHECKPOINTS_OMIT, TriVLAConfig, config_from_dict, config_to_dict
+from trivla_drake.nn.config import (
+    FIELDS_OLDER_CHECKPOINTS_OMIT,
+    REMOVED_FIELDS,
+    TriVLAConfig,
+    config_from_dict,
+    config_to_dict,
+)
 
 
 def _copy(directory, tmp_path):
@@ -48,14 +54,14 @@ def test_fields_newer_than_a_checkpoint_take_the_value_that_reproduces_it(saved,
     out = _copy(directory, tmp_path)
 
     def drop_newer(meta):
-        for dotted in ("policy.subgoal_yaw", "policy.grounding_anchor_camera", "dynamics.feature_noise"):
+        for dotted in ("policy.subgoal_offset", "policy.grounding_reads_gripper", "dynamics.feature_noise"):
             section, name = dotted.split(".")
             meta["config"][section].pop(name)
 
     _edit_config(out, drop_newer)
     loaded = load_checkpoint(str(out))
     assert loaded.config.dynamics.feature_noise == "random"  # what System 3 drew before the field existed
-    assert loaded.config.policy.subgoal_yaw is False and loaded.config.policy.grounding_anchor_camera == ()
+    assert loaded.config.policy.subgoal_offset is False and loaded.config.policy.grounding_reads_gripper is False
 
 
 def test_every_omittable_field_exists_with_a_valid_value():
@@ -68,11 +74,32 @@ def test_every_omittable_field_exists_with_a_valid_value():
 
 
 def test_the_shipped_config_json_holds_every_field_and_loads_unchanged():
-    """No field of the shipped checkpoint comes from a default: its config is exactly the file's."""
+    """No field of the shipped checkpoint comes from a default: its config is exactly the file's, but for the
+    removed variants' fields, which it lists at their off values."""
     from trivla_drake.eval.model_loading import default_checkpoint_dir
 
     meta = json.loads((default_checkpoint_dir() / "config.json").read_text())
-    assert json.loads(json.dumps(config_to_dict(config_from_dict(meta["config"])))) == meta["config"]
+    expected = json.loads(json.dumps(meta["config"]))
+    for dotted, off in REMOVED_FIELDS.items():
+        section, name = dotted.split(".")
+        assert expected[section].pop(name) == json.loads(json.dumps(off)), dotted  # listed, and off
+    assert json.loads(json.dumps(config_to_dict(config_from_dict(meta["config"])))) == expected
+
+
+@pytest.mark.parametrize("dotted, on", [("policy.subgoal_yaw", True), ("policy.grounding_reads_tcp", True),
+                                        ("policy.grounding_anchor_camera", [0.0] * 12),
+                                        ("vision_language.image_token_norm", True)])
+def test_a_removed_variant_loads_off_and_is_refused_on_naming_the_field_and_the_tag(saved, tmp_path, dotted, on):
+    """A checkpoint listing a removed field at its off value loads (the field ignored); one that turns it on is
+    refused, naming the field and the git tag that keeps its code."""
+    section, name = dotted.split(".")
+    off = _copy(saved[1], tmp_path / "off")
+    _edit_config(off, lambda meta: meta["config"][section].update({name: json.loads(json.dumps(REMOVED_FIELDS[dotted]))}))
+    assert not hasattr(getattr(load_checkpoint(str(off)).config, section), name)
+    turned_on = _copy(saved[1], tmp_path / "on")
+    _edit_config(turned_on, lambda meta: meta["config"][section].update({name: on}))
+    with pytest.raises(ValueError, match=rf"config\.{dotted.replace('.', '[.]')} is .*research-archive"):
+        load_checkpoint(str(turned_on))
 
 
 def test_a_config_json_without_its_config_is_a_clear_error(saved, tmp_path):

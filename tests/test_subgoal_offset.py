@@ -92,7 +92,7 @@ def test_an_offset_without_grounding_or_tcp_features_is_refused_naming_the_field
         dataclasses.replace(config, policy=dataclasses.replace(
             config.policy, instruction_grounding=True, tcp_features=False, subgoal_offset=True))
     data = str(tmp_path)
-    for options in ({}, {"grounding_weight": 1.0, "tcp_features": False}, {"stage": "video"}):
+    for options in ({}, {"stage": "video"}):
         settings = {"stage": "policy", "data": data, "out": str(tmp_path / "o"), "subgoal_offset": True, **options}
         with pytest.raises(ValueError, match=r"subgoal_offset \(--subgoal-offset\)"):
             TrainConfig(**settings).resolved().validate()

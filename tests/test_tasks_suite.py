@@ -224,13 +224,11 @@ def test_collect_refuses_what_evaluate_refuses():
 
     for kwargs, message in (({"tasks": ["lift_block", "lift_block"]}, r"--tasks names \['lift_block'\] more than once"),
                             ({"tasks": ["lift_block"], "seed": 2**32}, "--seed must be an integer from 0 to 4294967295"),
-                            ({"tasks": ["lift_block"], "seed": -1}, "--seed must be an integer"),
-                            ({"tasks": ["open_drawer"], "stacked_picks": 0.5}, "--stacked-picks applies to")):
+                            ({"tasks": ["lift_block"], "seed": -1}, "--seed must be an integer")):
         with pytest.raises(ValueError, match=message):
             CollectConfig(out="unused", episodes_per_task=1, **kwargs).validate()
-        evaluate_kwargs = dict(kwargs, stacked_picks=bool(kwargs.get("stacked_picks")))
         with pytest.raises(ValueError, match=message):
-            EvalConfig(episodes=1, **evaluate_kwargs).validate()
+            EvalConfig(episodes=1, **kwargs).validate()
 
 
 def test_unstack_plan_without_a_free_spot_says_so():

@@ -97,15 +97,15 @@ def test_parser_maps_every_flag_to_the_config():
     args = parser.parse_args(["train", "--stage", "policy", "--data", "d", "--out", "o", "--preset", "cpu",
                               "--init", "i", "--steps", "7", "--batch-size", "3", "--lr", "0.5",
                               "--checkpoint-every", "2", "--resume", "--seed", "9", "--workers", "1",
-                              "--fraction", "0.1", "--no-system2", "--no-system3", "--no-tcp-features",
+                              "--no-system2", "--no-system3",
                               "--vl-position-embedding", "--dense-weight", "0.5", "--grounding-weight", "0.25",
                               "--grounding-lr-scale", "2", "--grounding-phase", "bind", "--warmup-steps", "0",
                               "--min-lr-ratio", "1", "--beta2", "0.999", "--grad-clip", "0"])
     config = config_from_args(args)
     assert (config.stage, config.data, config.out, config.preset, config.init) == ("policy", "d", "o", "cpu", "i")
     assert (config.steps, config.batch_size, config.lr, config.checkpoint_every) == (7, 3, 0.5, 2)
-    assert (config.resume, config.seed, config.workers, config.fraction) == (True, 9, 1, 0.1)
-    assert not config.use_system2 and not config.use_system3 and not config.tcp_features
+    assert (config.resume, config.seed, config.workers) == (True, 9, 1)
+    assert not config.use_system2 and not config.use_system3
     assert config.vl_position_embedding and config.dense_weight == 0.5 and config.grounding_weight == 0.25
     assert config.grounding_lr_scale == 2.0 and config.grounding_phase == "bind"
     assert (config.warmup_steps, config.min_lr_ratio, config.beta2, config.grad_clip) == (0, 1.0, 0.999, 0.0)
@@ -143,12 +143,11 @@ def test_every_train_config_field_names_the_flag_that_sets_it():
             assert same_name not in dest_of, field.name
         else:  # the flag exists, and is the field's (its dest is the field, or the field without a suffix / "no_")
             dest = dest_of[flag]
-            assert dest in (field.name, field.name.removesuffix("_s"), field.name.removesuffix("_weighting"),
-                            field.name.removesuffix("_camera"),  # --grounding-anchor[-wrist]: a calibration
-                            "no_" + field.name, "no_" + field.name.removeprefix("use_")), (field.name, flag, dest)
+            assert dest in (field.name, "no_" + field.name, "no_" + field.name.removeprefix("use_")), (field.name, flag,
+                                                                                                   dest)
     saved = TrainConfig(stage="policy", data="d", out="o")
-    with pytest.raises(ValueError, match=r"gripper_event_window_s \(--gripper-event-window\) was 1.0"):
-        check_resume_compatible(saved, dataclasses.replace(saved, gripper_event_window_s=0.5))
+    with pytest.raises(ValueError, match=r"grounding_lr_scale \(--grounding-lr-scale\) was 3.0"):
+        check_resume_compatible(saved, dataclasses.replace(saved, grounding_lr_scale=0.5))
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -160,3 +159,16 @@ def test_grounding_carry_names_a_bad_task_or_a_missing_grounding(setup, capsys, 
 
     err = _fails_before_training(setup, capsys, tmp_path / "out", "--init", setup["good"], *extra)
     assert re.search(message, err), err
+
+
+def test_a_saved_training_config_with_a_removed_option_off_loads_and_on_is_refused_naming_it():
+    """Training configs saved before the experiments left list their options at the values every shipped run had:
+    they load; one that turned an option on is refused, naming the field and the git tag with its code."""
+    from trivla_drake.train.config import REMOVED_FIELDS, TrainConfig
+
+    saved = {**TrainConfig(stage="policy", data="d", out="o").to_dict(), **REMOVED_FIELDS}
+    assert TrainConfig.from_dict(saved) == TrainConfig(stage="policy", data="d", out="o")
+    with pytest.raises(ValueError, match=r"training config\.subgoal_noise is 0\.02.*research-archive"):
+        TrainConfig.from_dict({**saved, "subgoal_noise": 0.02})
+    with pytest.raises(ValueError, match="unknown fields"):
+        TrainConfig.from_dict({**saved, "no_such_option": 1})

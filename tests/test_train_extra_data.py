@@ -73,13 +73,9 @@ def test_union_samples_run_through_each_part_in_order():
         def __getitem__(self, i):
             return (self.name, i)
 
-        def gripper_event_repeats(self, window, weight):
-            return np.full(self.n, weight if self.name == "b" else 1)
-
     union = PolicyDatasetUnion([Part("a", 2), Part("b", 3)])
     assert len(union) == 5 and [union[i] for i in range(5)] == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("b", 2)]
     assert union.shards == {(0, 0): "a.safetensors", (1, 0): "b.safetensors"}
-    assert union.gripper_event_repeats(3, 4).tolist() == [1, 1, 4, 4, 4]
     with pytest.raises(IndexError):
         union[5]
     with pytest.raises(AssertionError):  # torch's message: "datasets should not be an empty iterable"

@@ -58,8 +58,6 @@ def test_config_fills_stage_defaults_and_rejects_bad_values():
         TrainConfig(stage="audio", out="o").resolved()
     with pytest.raises(ValueError, match="data .*required"):
         TrainConfig(stage="video", out="o").resolved().validate()
-    with pytest.raises(ValueError, match="fraction"):
-        TrainConfig(stage="policy", out="o", data="d", fraction=0.0).resolved().validate()
     with pytest.raises(ValueError, match="no-system3"):
         TrainConfig(stage="video", out="o", data="d", use_system3=False).resolved().validate()
     with pytest.raises(ValueError, match="batch_size"):

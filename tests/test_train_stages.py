@@ -14,10 +14,8 @@ import pytest
 import torch
 
 from trivla_drake.data.lerobot import LeRobotReader
-from trivla_drake.nn import TriVLA, load_checkpoint, make_config
+from trivla_drake.nn import TriVLA, load_checkpoint, make_config, save_checkpoint
 from trivla_drake.train import TrainConfig, train
-from trivla_drake.train.datasets import select_episodes
-from trivla_drake.train.synthetic import TASKS
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
@@ -155,27 +153,6 @@ def test_ablation_without_system2_keeps_system3_and_caches_other_features(runs, 
                           init=summary["final_checkpoint"], **runs["common"]))
 
 
-def test_fraction_keeps_a_share_of_every_task(tmp_path):
-    data = write_synthetic_dataset(tmp_path / "d", lengths=[4] * 12, image_size=16)
-    reader = LeRobotReader(data)
-    chosen = select_episodes(reader, 0.5, seed=0)
-    tasks = [reader.task_of(e) for e in chosen]
-    assert len(chosen) == 6 and all(tasks.count(t) == 2 for t in set(tasks))
-    assert select_episodes(reader, 0.5, seed=0) == chosen and select_episodes(reader, 0.5, seed=1) != chosen
-    assert len(select_episodes(reader, 0.01, seed=0)) == 3  # at least one per task
-    assert select_episodes(reader, 1.0, seed=0) == list(range(12))
-
-
-def test_fraction_counts_suite_tasks_not_instruction_phrasings(tmp_path):
-    from trivla_drake.train.datasets import episode_task
-
-    data = write_synthetic_dataset(tmp_path / "d", lengths=[4] * 12, image_size=16, phrasings=2)
-    reader = LeRobotReader(data)
-    assert len({reader.task_of(e) for e in range(12)}) == 6  # 3 tasks x 2 phrasings
-    chosen = select_episodes(reader, 0.25, seed=0)
-    assert sorted(episode_task(reader, e) for e in chosen) == sorted(TASKS)  # one of each task's 4, not 6
-
-
 def test_every_stage_writes_its_loss_curve(runs, tmp_path):
     import shutil
 
@@ -200,46 +177,11 @@ def test_policy_stage_sets_the_tcp_features_of_an_init_checkpoint(runs, tmp_path
     plain = apply_ablations(vlm, True, True, "test", tcp_features=False)
     assert not plain.config.policy.tcp_features and plain.tcp_features is None
     assert _same(_weights(plain, "vision_language."), _weights(vlm, "vision_language."))
-    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "plain"), steps=2,
-                                init=runs["vlm"]["final_checkpoint"], tcp_features=False, **runs["common"]))
-    assert not load_checkpoint(summary["final_checkpoint"]).config.policy.tcp_features
-    with pytest.raises(ValueError, match="tcp_features"):
-        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "plain"), steps=4, resume=True,
-                          init=runs["vlm"]["final_checkpoint"], **runs["common"]))
-
-
-def test_vlm_stage_uses_and_records_its_loss_weighting(runs, tmp_path):
-    """--vlm-loss answer changes the loss the vlm stage optimises (same first batch, another
-    average), is saved with the run's config, and a bad value names the field."""
-    first = {}
-    for weighting in ("token", "answer"):
-        train(TrainConfig(stage="vlm", out=str(tmp_path / weighting), init=runs["video"]["final_checkpoint"],
-                          steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
-                          vlm_loss_weighting=weighting, **runs["common"]))
-        first[weighting] = _losses(tmp_path / weighting)[0]
-        saved = json.loads((tmp_path / weighting / "final" / "train_config.json").read_text())
-        assert saved["vlm_loss_weighting"] == weighting
-    assert first["token"] != pytest.approx(first["answer"], rel=1e-3)
-    with pytest.raises(ValueError, match="vlm_loss_weighting"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "bad"), vlm_loss_weighting="sample").resolved().validate()
-
-
-def test_vlm_stage_adds_the_image_token_norm_and_checkpoints_its_statistics(runs, tmp_path):
-    """--image-token-norm gives System 2 a fresh batch norm of its image tokens (an --init without
-    one), trains it with the rest of System 2, and the checkpoint reloads it with its running
-    statistics; the other stages refuse the setting."""
-    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "vlm"), init=runs["video"]["final_checkpoint"],
-                                steps=3, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
-                                image_token_norm=True, **runs["common"]))
-    assert not load_checkpoint(runs["video"]["final_checkpoint"]).config.vision_language.image_token_norm
-    model = load_checkpoint(summary["final_checkpoint"])
-    norm = model.vision_language.image_token_norm
-    assert model.config.vision_language.image_token_norm and norm is not None
-    assert int(norm.num_batches_tracked) == 3 and float(norm.running_mean.abs().sum()) > 0
-    assert not torch.equal(norm.weight, torch.ones_like(norm.weight))  # trained
-    with pytest.raises(ValueError, match="image_token_norm"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"),
-                    image_token_norm=True).resolved().validate()
+    # every run trains with them: one from a checkpoint without them adds them
+    save_checkpoint(plain, str(tmp_path / "no_tcp"))
+    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "tcp"), steps=2,
+                                init=str(tmp_path / "no_tcp"), **runs["common"]))
+    assert load_checkpoint(summary["final_checkpoint"]).config.policy.tcp_features
 
 
 def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
@@ -346,8 +288,6 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert all(torch.equal(kept[k], v) for k, v in after.policy.grounding.state_dict().items())
     with pytest.raises(ValueError, match="keep_grounding.*which has none"):
         build_model(dataclasses.replace(again, init=init, keep_grounding=True), None)
-    with pytest.raises(ValueError, match="grounding_reads_tcp.*follow run keeps.*bind one with"):
-        build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_tcp=True), None)
     with pytest.raises(ValueError, match="grounding_reads_gripper.*follow run keeps.*bind one with"):
         build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_gripper=True), None)
     # --keep-grounding --grounding-reads-gripper --bind-held-only: only the held-block read-out (a copy of the
@@ -399,42 +339,6 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert offset_model.config.policy.subgoal_offset and not after.config.policy.subgoal_offset
     assert offset_model.policy.subgoal_offset.mlp[2].weight.abs().sum() > 0
     assert torch.equal(offset_model.policy.grounding.compose.weight, after.policy.grounding.compose.weight)
-    # --subgoal-noise: the run hands its noise to every flow-matching loss (tests/test_subgoal_noise.py checks what it does)
-    seen = []
-    compute_loss = TriVLA.compute_loss
-
-    def recording(self, batch, **kwargs):
-        seen.append(kwargs.get("subgoal_noise"))
-        return compute_loss(self, batch, **kwargs)
-
-    monkeypatch.setattr(TriVLA, "compute_loss", recording)
-    train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "noisy"), init=bound["final_checkpoint"], steps=2,
-                      grounding_weight=1.0, grounding_phase="follow", subgoal_offset=True, subgoal_noise=0.02,
-                      **runs["common"]))
-    monkeypatch.undo()
-    assert seen == [0.02, 0.02]
-    # the offset encoder may come from --init; a model with none is refused before training
-    noisy = dataclasses.replace(again, grounding_phase="follow", subgoal_noise=0.02)
-    with pytest.raises(ValueError, match=r"subgoal_noise \(--subgoal-noise\).*--init checkpoint.*has none"):
-        build_model(noisy, None)
-    assert build_model(dataclasses.replace(noisy, init=offset["final_checkpoint"]), None).policy.subgoal_offset is not None
-    # --subgoal-yaw: a bind run adds a yaw head to the grounding it keeps and trains it on the dataset's yaw
-    # labels; a follow run from it trains System 1's yaw encoder; a follow run cannot add the head
-    yaw_bind = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "yaw_bind"), init=bound["final_checkpoint"],
-                                 steps=2, grounding_weight=1.0, grounding_phase="bind", keep_grounding=True,
-                                 subgoal_yaw=True, **runs["common"]))
-    yaw_bound = load_checkpoint(yaw_bind["final_checkpoint"])
-    assert yaw_bound.config.policy.subgoal_yaw and yaw_bound.policy.grounding.yaw_head is not None
-    assert torch.equal(yaw_bound.policy.grounding.goal[0].weight, after.policy.grounding.goal[0].weight)
-    assert torch.equal(yaw_bound.policy.subgoal_yaw.mlp[2].weight, torch.zeros_like(yaw_bound.policy.subgoal_yaw.mlp[2].weight))
-    with pytest.raises(ValueError, match=r"subgoal_yaw \(--subgoal-yaw\).*follow run keeps.*bind one with --subgoal-yaw"):
-        build_model(dataclasses.replace(again, grounding_phase="follow", subgoal_yaw=True), None)
-    yaw_follow = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "yaw_follow"),
-                                   init=yaw_bind["final_checkpoint"], steps=2, grounding_weight=1.0,
-                                   grounding_phase="follow", subgoal_yaw=True, **runs["common"]))
-    yaw_followed = load_checkpoint(yaw_follow["final_checkpoint"])
-    assert yaw_followed.policy.subgoal_yaw.mlp[2].weight.abs().sum() > 0
-    assert torch.equal(yaw_followed.policy.grounding.yaw_head.weight, yaw_bound.policy.grounding.yaw_head.weight)
 
     with pytest.raises(ValueError, match="follow keeps the instruction grounding.*bind first"):
         train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,
@@ -496,36 +400,6 @@ def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, t
     summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), init=str(trimmed),
                                 steps=2, **runs["common"]))
     assert len(load_checkpoint(summary["final_checkpoint"]).vision_language.llm.model.layers) == 1
-
-
-def test_vlm_stage_trains_the_dense_loss_alone_on_a_trimmed_export(runs, tmp_path):
-    """--answer-weight 0: the vlm stage goes on from an export without its upper LLM layers, training
-    System 2's image tokens by the dense loss alone; the LLM is frozen (and not run), the answers are
-    not scored, and the flag is refused where it means nothing."""
-    from trivla_drake.train.checkpoints import export_checkpoint
-
-    trimmed = export_checkpoint(runs["vlm"]["final_checkpoint"], tmp_path / "trimmed", drop_unused_llm_layers=True)
-    with pytest.raises(ValueError, match="or train the dense loss alone \\(--answer-weight 0\\)"):
-        train(TrainConfig(stage="vlm", out=str(tmp_path / "v"), init=str(trimmed), steps=1, vqa_scenes=10,
-                          vqa_questions_per_scene=4, vqa_eval_questions=0, dense_weight=1.0, **runs["common"]))
-    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "dense"), init=str(trimmed), steps=3, vqa_scenes=10,
-                                vqa_questions_per_scene=4, dense_weight=1.0, answer_weight=0.0, **runs["common"]))
-    before, after = load_checkpoint(trimmed), load_checkpoint(summary["final_checkpoint"])
-    assert len(after.vision_language.llm.model.layers) == 1 and after.vision_language.block_head is not None
-    assert _same(_weights(before, "vision_language.llm."), _weights(after, "vision_language.llm."))
-    assert not _same(_weights(before, "vision_language.vision_encoder."),
-                     _weights(after, "vision_language.vision_encoder."))
-    assert _same(_weights(before, "policy."), _weights(after, "policy."))
-    logged = _rows(tmp_path / "dense")
-    assert len(logged) == 3 and all("vlm_loss" not in row and row["loss"] == pytest.approx(row["dense_loss"])
-                                     for row in logged)
-    assert not any(key.startswith("vqa_") and key != "vqa_folder" for key in summary)  # no answers to score
-    with pytest.raises(ValueError, match="answer_weight \\(--answer-weight\\) 0 .* needs dense_weight"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), answer_weight=0.0).resolved().validate()
-    with pytest.raises(ValueError, match="answer_weight \\(--answer-weight\\) must be a finite number >= 0"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), answer_weight=float("nan")).resolved().validate()
-    with pytest.raises(ValueError, match="answer_weight .*not the policy stage"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), answer_weight=0.5).resolved().validate()
 
 
 def test_a_fresh_vlm_run_builds_every_llm_layer_of_a_preset_that_drops_them(tmp_path):
@@ -688,23 +562,17 @@ def _narrowed_copy(data, out):
     return str(out)
 
 
-def test_keep_normalization_keeps_the_init_models_statistics_and_a_refit_says_what_narrowed(runs, tmp_path, capsys):
-    """A follow on a dataset with narrower action ranges: by default the statistics are refitted to it and a
-    note names the narrowed dimensions; --keep-normalization keeps --init's exactly."""
+def test_a_refit_on_narrower_actions_says_what_narrowed(runs, tmp_path, capsys):
+    """A follow on a dataset with narrower action ranges: the statistics are refitted to it and a note names the
+    narrowed dimensions."""
     init = load_checkpoint(runs["policy"]["final_checkpoint"]).normalization
     narrow = _narrowed_copy(runs["data"], tmp_path / "narrow")
     refit = train(TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "refit"), steps=1,
                               init=runs["policy"]["final_checkpoint"], **runs["common"]))
     note = capsys.readouterr().err
-    assert "action ranges are narrower" in note and "--keep-normalization" in note
+    assert "action ranges are narrower" in note
     refitted = load_checkpoint(refit["final_checkpoint"]).normalization
     assert refitted.action_max == pytest.approx([0.5 * v for v in init.action_max])
-    kept = train(TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "kept"), steps=1,
-                             init=runs["policy"]["final_checkpoint"], keep_normalization=True, **runs["common"]))
-    assert "narrower" not in capsys.readouterr().err
-    assert load_checkpoint(kept["final_checkpoint"]).normalization == init
-    with pytest.raises(ValueError, match="keep_normalization.*needs --stage policy and --init"):
-        TrainConfig(stage="policy", data=narrow, out=str(tmp_path / "v"), keep_normalization=True).resolved().validate()
 
 
 def test_narrowed_action_ranges_names_only_the_dimensions_that_shrank():

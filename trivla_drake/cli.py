@@ -125,7 +125,7 @@ def _cmd_demo(args) -> int:
     args.episodes = 1 if args.episodes is None else args.episodes
     # `evaluate`'s checks of the task (an unknown name lists the valid ones) and --seed; then the rest, all before
     # a model loads or a simulation runs.
-    check_run_settings([args.task], args.seed, stacked_picks=False)
+    check_run_settings([args.task], args.seed)
     check_episode_count(args.episodes, "--episodes")
     check_seconds(args.max_seconds, "--max-seconds")
     check_instruction_text(args.instruction)
@@ -240,58 +240,6 @@ def _cmd_tables(args) -> int:
     return 0
 
 
-def _cmd_probe(args) -> int:
-    from trivla_drake.data.lerobot import LeRobotReader
-    from trivla_drake.eval.evaluate import check_episode_count
-    from trivla_drake.eval.feature_probe import format_probe_table, probe_block_positions
-    from trivla_drake.eval.model_loading import load_model
-
-    # Counts of runs or steps, bounded as `evaluate`'s episodes are, before any model loads.
-    check_episode_count(args.grounding_scenes, "--grounding-scenes", minimum=0)
-    check_episode_count(args.grasp_episodes, "--grasp-episodes", minimum=0)
-    check_episode_count(args.attention_steps, "--attention-steps", minimum=0)
-    if args.drive is not None and not args.grounding_scenes:
-        raise ValueError("--drive chooses whose trajectories --grounding-scenes follows: it needs --grounding-scenes")
-    if args.grasp_episodes:
-        from trivla_drake.eval.grasp_report import format_grasp_report, grasp_report, grasp_summary
-        from trivla_drake.eval.policies import load_policy
-
-        _set_torch_threads(args.threads)
-        rows = grasp_report(load_policy(args.checkpoint or "trivla"), episodes_per_task=args.grasp_episodes)
-        print(json.dumps({"episodes": [r.to_dict() for r in rows], "summary": grasp_summary(rows)}) if args.json
-              else format_grasp_report(rows))
-        return 0
-    if args.grounding_scenes:
-        from trivla_drake.eval.grounding_check import format_grounding_check, grounding_check
-
-        _set_torch_threads(args.threads)
-        driver = None
-        if args.drive is not None:
-            from trivla_drake.eval.policies import load_policy
-
-            driver = load_policy(args.drive)
-        check = grounding_check(load_model(args.checkpoint), scenes=args.grounding_scenes, driver=driver)
-        print(json.dumps(check.to_dict()) if args.json else format_grounding_check(check))
-        return 0
-    if args.data is None:
-        raise ValueError("--data is required: the dataset whose features the probes read (or pass "
-                         "--grounding-scenes or --grasp-episodes)")
-    if args.episodes is not None and args.episodes < 10:
-        raise ValueError(f"--episodes must be at least 10 (5 folds of 2), got {args.episodes}")
-    _set_torch_threads(args.threads)
-    reader = LeRobotReader(args.data)
-    model = load_model(args.checkpoint)
-    if args.feature_noise and model.dynamics is not None:
-        model.dynamics.config.feature_noise = args.feature_noise
-    results = probe_block_positions(model, reader, max_episodes=args.episodes, attention_steps=args.attention_steps)
-    episodes = reader.num_episodes if args.episodes is None else min(args.episodes, reader.num_episodes)
-    if args.json:
-        print(json.dumps({"episodes": episodes, "results": [r.to_dict() for r in results]}))
-    else:
-        print(format_probe_table(results, episodes))
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
@@ -377,28 +325,6 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
 
-    probe = commands.add_parser("probe", help="linear probes: how well System 2's and System 3's features "
-                                "locate the blocks (held-out R^2), with raw pixels as reference")
-    probe.add_argument("--data", default=None, help="dataset written by `collect` (required unless --grounding-scenes or --grasp-episodes)")
-    probe.add_argument("--checkpoint", default=None, help="TriVLA checkpoint (default: models/trivla_cpu)")
-    probe.add_argument("--episodes", type=int, default=None, help="first N episodes only (default: all)")
-    probe.add_argument("--feature-noise", choices=("fixed", "random"), default=None,
-                       help="System 3's noise latents for this probe (default: the checkpoint's setting)")
-    probe.add_argument("--attention-steps", type=int, default=1500,
-                       help="Adam steps of the attention read-outs of System 2's image tokens (0: none)")
-    probe.add_argument("--grounding-scenes", type=int, default=0,
-                       help="instead: check System 1's instruction grounding on N unseen lift_block scenes "
-                            "(is its sub-goal nearest the block each colour word names?)")
-    probe.add_argument("--drive", default=None, metavar="POLICY",
-                       help="with --grounding-scenes: follow this policy's trajectories (a checkpoint directory "
-                            "or trivla; default: the oracle's), where the grounding guides in closed loop")
-    probe.add_argument("--grasp-episodes", type=int, default=0,
-                       help="instead: N unseen episodes each of lift, stack and place in bowl; where the gripper "
-                            "first closes against the named block and the grounding's sub-goal (--checkpoint may "
-                            "also be oracle)")
-    probe.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    probe.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    probe.set_defaults(run=_cmd_probe)
 
     bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
     bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")

@@ -57,13 +57,7 @@ EPISODE_TASK_KEY = "trivla/task"
 # the setting, and the frames whose applied action was disturbed (missing: none was).
 ACTION_NOISE_KEY = "trivla/action_noise"
 PERTURBED_FRAMES_KEY = "trivla/perturbed_frames"
-YAW_TWISTS_KEY = "trivla/yaw_twists"  # the hand's yaw was twisted on its way to the first grasp (--yaw-twists)
-MISSED_GRASPS_KEY = "trivla/missed_grasps"  # the first grasp was made to miss, the expert grasped again (--missed-grasps)
-APPROACH_DRIFTS_KEY = "trivla/approach_drifts"  # the hand drifted off on its way to the first grasp (--approach-drifts)
-TAKEOVER_KEY = "trivla/takeover"  # a learned policy drove first (--takeover CHECKPOINT): the checkpoint's folder
 PRELUDE_KEY = "trivla/prelude"  # tasks the oracle completed, unrecorded, before the episode's (--prelude-tasks)
-STACKED_PICK_KEY = "trivla/stacked_pick"  # the block to pick up started on top of another (--stacked-picks)
-DETOURS_KEY = "trivla/detours"  # places the oracle visited before its task (eval/collect.py, --detours)
 # The Arrow types of the trivla/* episode columns, so every episode's row has the same schema whatever it holds (an
 # empty list would otherwise be list<null> in one file and list<string> in the next, and readers of the whole
 # meta/episodes folder, pyarrow.dataset or Hugging Face datasets, drop or refuse such columns).
@@ -74,19 +68,28 @@ EPISODE_COLUMN_TYPES = {
     "trivla/params": pa.list_(pa.string()),
     ACTION_NOISE_KEY: pa.float64(),
     PERTURBED_FRAMES_KEY: pa.list_(pa.int64()),
-    YAW_TWISTS_KEY: pa.bool_(),
-    MISSED_GRASPS_KEY: pa.bool_(),
-    APPROACH_DRIFTS_KEY: pa.bool_(),
-    TAKEOVER_KEY: pa.string(),
     PRELUDE_KEY: pa.list_(pa.string()),
-    STACKED_PICK_KEY: pa.bool_(),
-    DETOURS_KEY: pa.int64(),
 }
 # What a `collect` episode without one of these settings records (before session 66 it left the column out).
-EPISODE_COLUMN_DEFAULTS = {
-    ACTION_NOISE_KEY: 0.0, PERTURBED_FRAMES_KEY: [], YAW_TWISTS_KEY: False, MISSED_GRASPS_KEY: False,
-    APPROACH_DRIFTS_KEY: False, TAKEOVER_KEY: "", PRELUDE_KEY: [], STACKED_PICK_KEY: False, DETOURS_KEY: 0,
+EPISODE_COLUMN_DEFAULTS = {ACTION_NOISE_KEY: 0.0, PERTURBED_FRAMES_KEY: [], PRELUDE_KEY: []}
+# Columns of collection experiments that left the product (code at git tag `research-archive`), at the value every
+# episode the product can still collect had in them: datasets written before still read (the columns are ignored),
+# and `with_removed_columns` puts them back where a row lacks them, so an episode's keys stay what they were.
+REMOVED_EPISODE_COLUMNS = {
+    "trivla/yaw_twists": False, "trivla/missed_grasps": False, "trivla/approach_drifts": False,
+    "trivla/takeover": "", "trivla/stacked_pick": False, "trivla/detours": 0,
 }
+
+
+def with_removed_columns(row: dict) -> dict:
+    """`row` as the collector before the removal wrote it: a row with every EPISODE_COLUMN_DEFAULTS column (written
+    since session 66, when every column went into every row) gets the REMOVED_EPISODE_COLUMNS it lacks at their
+    values; an older row, which left unused columns out, stays as it is."""
+    if not all(key in row for key in EPISODE_COLUMN_DEFAULTS):
+        return row
+    return {**REMOVED_EPISODE_COLUMNS, **row}
+
+
 TASKS_PATH = "meta/tasks.parquet"
 DEFAULT_FEATURES = {
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},

@@ -17,8 +17,6 @@ Sample for frame t of an episode with T frames (keys; shapes with the defaults):
                             that action: it answers a state frame t does not show, so it is no label
     subgoal_position        (3,) float32 [m], where the tool-centre point is when the gripper next
                             changes (data/subgoals.py); only when the dataset has observation.tcp_pose
-    subgoal_yaw             (2,) float32, (cos 4 psi, sin 4 psi) of the tcp's yaw psi at that gripper change
-                            (data/subgoals.py: the yaw modulo a quarter turn); with subgoal_position
     subgoal_in_loss         bool, frame t trains the instruction grounding: it lies before the episode's
                             first gripper change, or carries the block of a `grounding_carry_tasks` task
     episode_index, frame_index
@@ -37,7 +35,6 @@ from trivla_drake.data.subgoals import (
     approach_frames,
     carry_frames,
     next_gripper_event_positions,
-    next_gripper_event_yaws,
 )
 
 GRIPPER_INDEX = 6
@@ -121,7 +118,6 @@ class TrainingSamples:
             gripper = np.asarray(data[self.action_key])[:, GRIPPER_INDEX]
             tcp_pose = np.asarray(data[TCP_POSE_KEY])
             data["subgoal_position"] = next_gripper_event_positions(gripper, tcp_pose[:, :3])
-            data["subgoal_yaw"] = next_gripper_event_yaws(gripper, tcp_pose[:, 3:7])
             data["subgoal_in_loss"] = approach_frames(gripper)
             if self.reader.episodes[episode].get(EPISODE_TASK_KEY) in self.grounding_carry_tasks:
                 data["subgoal_in_loss"] |= carry_frames(gripper)
@@ -159,7 +155,6 @@ class TrainingSamples:
         }
         if "subgoal_position" in data:
             sample["subgoal_position"] = data["subgoal_position"][t]
-            sample["subgoal_yaw"] = data["subgoal_yaw"][t]
             sample["subgoal_in_loss"] = bool(data["subgoal_in_loss"][t])
         for key in self.cameras:
             frames = data["videos"][key]

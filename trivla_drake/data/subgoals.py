@@ -56,18 +56,6 @@ def carry_frames(gripper: np.ndarray) -> np.ndarray:
     return carry
 
 
-def before_gripper_event_frames(gripper: np.ndarray, window: int) -> np.ndarray:
-    """bool (T,): True for the frames less than `window` frames before a gripper change (the hand's
-    last approach to a grasp or a release), and for the change's own frame."""
-    gripper = np.asarray(gripper, dtype=np.float64)
-    if gripper.ndim != 1:
-        raise ValueError(f"gripper must be (T,); got {gripper.shape}")
-    near = np.zeros(len(gripper), dtype=bool)
-    for change in gripper_changes(gripper):
-        near[max(0, int(change) - window + 1) : int(change) + 1] = True
-    return near
-
-
 def next_gripper_event_frames(gripper: np.ndarray) -> np.ndarray:
     """Per frame t of an episode, the first frame k > t whose gripper command (T,) has another sign
     than frame k-1's, else the last frame. Returns int64 (T,)."""
@@ -97,29 +85,3 @@ def next_gripper_event_positions(gripper: np.ndarray, tcp_position: np.ndarray) 
     gripper (T,) commands (sign: open / closed); tcp_position (T, 3) [m]. Returns float32 (T, 3)."""
     gripper, tcp_position = _checked(gripper, tcp_position, "tcp_position", 3)
     return tcp_position[next_gripper_event_frames(gripper)].astype(np.float32)
-
-
-def quaternion_yaw(tcp_quaternion: np.ndarray) -> np.ndarray:
-    """The hand's yaw psi [rad] about world z of tcp orientations (..., 4) as quaternions (w, x, y, z):
-    the direction of the tcp's x axis (the rotation matrix's first column), as scene.hand_yaw reads it."""
-    q = np.asarray(tcp_quaternion, dtype=np.float64)
-    if q.shape[-1] != 4:
-        raise ValueError(f"tcp_quaternion must be (..., 4) as (w, x, y, z); got {q.shape}")
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
-
-
-def quarter_turn_yaw_features(tcp_quaternion: np.ndarray) -> np.ndarray:
-    """The hand's yaw psi (`quaternion_yaw`) of tcp orientations (..., 4) as (cos 4 psi, sin 4 psi)
-    (..., 2): the yaw modulo a quarter turn, continuous across it. A cube's faces repeat every quarter
-    turn, so a grasp at psi and at psi + 90 degrees closes on the same faces; the features tell the
-    faces apart from the 45-degree turn between them, where a grasp fails."""
-    psi = quaternion_yaw(tcp_quaternion)
-    return np.stack([np.cos(4.0 * psi), np.sin(4.0 * psi)], axis=-1).astype(np.float32)
-
-
-def next_gripper_event_yaws(gripper: np.ndarray, tcp_quaternion: np.ndarray) -> np.ndarray:
-    """Per frame t, `quarter_turn_yaw_features` of the tcp orientation at the next gripper event (as
-    `next_gripper_event_positions`). gripper (T,); tcp_quaternion (T, 4) (w, x, y, z). float32 (T, 2)."""
-    gripper, tcp_quaternion = _checked(gripper, tcp_quaternion, "tcp_quaternion", 4)
-    return quarter_turn_yaw_features(tcp_quaternion[next_gripper_event_frames(gripper)])

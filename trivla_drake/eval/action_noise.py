@@ -11,13 +11,6 @@ end-effector velocity (random direction, `speed` m per step; rotation with `turn
 standard deviation per axis) is added to the expert's action. The gripper is never disturbed.
 Between bursts the expert's actions are applied unchanged, so it reaches its waypoints exactly.
 
-`YawTwists` is a second, targeted disturbance: once per episode, while the open hand comes down to
-its first grasp, its yaw is turned 17-43 degrees away from the expert's (the rotation the expert
-commands is replaced for those steps). The expert (with `OraclePolicy(turn_first=True)`) then
-holds its position until it has turned back, and only then goes down. A learned policy that comes
-near a block turned off its faces finds such states in the data, with the turn that recovers; in
-clean demonstrations the hand is always turned right before it is near (results/grasp_yaw).
-
 Which steps were disturbed is recorded (`Trajectory.perturbed`): a recorded action that comes after
 a disturbed step answers a state the earlier frame does not show, so training masks it out of that
 frame's action chunk (see `trivla_drake.data.samples`).
@@ -38,8 +31,8 @@ class DisturbanceState(Protocol):
 
 
 class Disturbance(Protocol):
-    """Settings of a disturbance of the applied actions (bursts, yaw twists, missed grasps, approach
-    drifts); `start(rng)` begins one episode's."""
+    """Settings of a disturbance of the applied actions (a registered perturbation, eval/perturbations.py);
+    `start(rng)` begins one episode's."""
 
     def start(self, rng: np.random.Generator) -> DisturbanceState: ...
 
@@ -86,7 +79,7 @@ class BurstState:
         self.velocity = np.zeros(6)
 
     def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
-        """`observation` is not used (the interface of `YawTwistState.apply`)."""
+        """`observation` is not used (the interface of `DisturbanceState.apply`)."""
         s, rng = self.settings, self.rng
         if self.remaining == 0 and rng.random() < s.rate:
             self.remaining = int(rng.integers(s.min_steps, s.max_steps + 1))
@@ -98,73 +91,4 @@ class BurstState:
         self.remaining -= 1
         applied = np.array(action, dtype=float)
         applied[:6] += self.velocity
-        return applied, True
-
-
-# What `descent_below` tells a once-per-episode disturbance.
-WAITING, STARTED, PAST = "waiting", "started", "past"
-
-
-def descent_below(action: np.ndarray, observation: dict | None, start_z: float, who: str) -> str:
-    """Whether the expert's `action` (7,) starts the one disturbance of an episode that waits for the open
-    hand to come down to its first grasp: PAST once the gripper is commanded closed (the first grasp
-    began), STARTED when the action goes down while observation['ee_target'] (4x4, the commanded tcp
-    pose) is below `start_z` [m], else WAITING. ValueError naming `who` without the commanded pose."""
-    if action[6] <= 0.0:
-        return PAST
-    if observation is None or "ee_target" not in observation:
-        raise ValueError(f"{who} needs observation['ee_target'] (the commanded tcp pose)")
-    if action[2] < 0.0 and float(np.asarray(observation["ee_target"])[2, 3]) < start_z:
-        return STARTED
-    return WAITING
-
-
-@dataclass(frozen=True)
-class YawTwists:
-    """Settings of the yaw twist (see the module docstring)."""
-
-    # The twist starts the first time the commanded tcp, descending with the gripper open and before
-    # the gripper first closes, is below a height drawn uniformly from this range [m].
-    start_z: tuple[float, float] = (0.06, 0.14)
-    # Total twist [rad], drawn uniformly; the sign is drawn too.
-    angle: tuple[float, float] = (0.3, 0.75)
-    # Rotation about the world's vertical per step while twisting [rad]; the step's translation stays the expert's.
-    rate: float = 0.04
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.start_z[0] <= self.start_z[1]:
-            raise ValueError(f"yaw twist start_z range must be 0 < low <= high, got {self.start_z}")
-        if not 0.0 < self.angle[0] <= self.angle[1] < np.pi / 4:
-            raise ValueError(f"yaw twist angle range must be 0 < low <= high < pi/4, got {self.angle}")
-        if not 0.0 < self.rate <= 0.05:
-            raise ValueError(f"yaw twist rate must be in (0, 0.05] rad per step, got {self.rate}")
-
-    def start(self, rng: np.random.Generator) -> "YawTwistState":
-        """A fresh twist for one episode, drawing from `rng`."""
-        return YawTwistState(self, rng)
-
-
-class YawTwistState:
-    """The twist of one episode: `apply(action, observation)` -> (applied action, disturbed?).
-
-    `observation['ee_target']` (4x4, the executor's commanded tcp pose) tells the height."""
-
-    def __init__(self, settings: YawTwists, rng: np.random.Generator) -> None:
-        self.settings = settings
-        self.start_z = float(rng.uniform(*settings.start_z))
-        angle = float(rng.uniform(*settings.angle))
-        self.steps = int(np.ceil(angle / settings.rate))
-        self.step_rate = float(rng.choice([-1.0, 1.0])) * angle / self.steps
-        self.remaining = -1  # -1: not started; then the steps left; 0: done (or never, past the first close)
-
-    def apply(self, action: np.ndarray, observation: dict | None = None) -> tuple[np.ndarray, bool]:
-        if self.remaining == -1:
-            when = descent_below(action, observation, self.start_z, "YawTwists")
-            if when != WAITING:
-                self.remaining = self.steps if when == STARTED else 0  # PAST: this episode is not twisted
-        if self.remaining <= 0:
-            return action, False
-        self.remaining -= 1
-        applied = np.array(action, dtype=float)
-        applied[3:6] = (0.0, 0.0, self.step_rate)
         return applied, True

@@ -97,13 +97,7 @@ def run_collect(args: argparse.Namespace) -> int:
             workers=args.workers,
             image_size=args.image_size,
             action_noise=args.action_noise,
-            detours=args.detours,
-            yaw_twists=args.yaw_twists,
-            missed_grasps=args.missed_grasps,
-            approach_drifts=args.approach_drifts,
-            takeover=args.takeover,
             prelude_tasks=args.prelude_tasks,
-            stacked_picks=args.stacked_picks,
         )
         summary = collect(config, progress=not args.no_progress)
     except _user_errors() as error:
@@ -140,8 +134,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             execute_steps=args.execute_steps,
             ensemble_decay=args.ensemble_decay,
             prelude=args.prelude,
-            home_first=args.home_first,
-            stacked_picks=args.stacked_picks,
+            policy_wrappers=["home_first"] if args.home_first else [],
             hold_check=args.hold_check,
         )
         if args.threads < 1:
@@ -182,47 +175,10 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
              "actions stay the oracle's; episodes started from now on get this setting.",
     )
     parser.add_argument(
-        "--detours", type=int, default=0,
-        help="before its task the oracle visits this many places just above blocks the instruction does not "
-             "name (data for binding the instruction grounding, not for imitation; default 0). Episodes "
-             "started from now on get this setting.",
-    )
-    parser.add_argument(
-        "--yaw-twists", action="store_true",
-        help="twist the hand's yaw 17-43 degrees once on its way down to the first grasp; the oracle turns "
-             "back before going on down (recovery data for the grasp's yaw; the recorded actions stay the "
-             "oracle's). Episodes started from now on get this setting.",
-    )
-    parser.add_argument(
-        "--missed-grasps", action="store_true",
-        help="make the first grasp miss (the hand closes 3-4.5 cm beside where the oracle was heading, across "
-             "its fingers, turned up to 43 degrees); the oracle opens, rises and grasps again (recovery data for missed grasps; "
-             "the recorded actions stay the oracle's). Episodes started from now on get this setting.",
-    )
-    parser.add_argument(
-        "--approach-drifts", action="store_true",
-        help="push the hand 1.2-3.5 cm sideways and turn it up to 34 degrees once on its way down to the first "
-             "grasp; the oracle stops going down and centres it again first (recovery data for where the wrist "
-             "view shows the block off-centre; the recorded actions stay the oracle's). Episodes started from "
-             "now on get this setting.",
-    )
-    parser.add_argument(
-        "--takeover", default=None, metavar="CHECKPOINT",
-        help="this TriVLA checkpoint drives first (30-150 steps, or until it closes the hand), then the oracle "
-             "takes over from where it left the hand (DAgger-style data: the recorded actions are the oracle's "
-             "in the states the policy reached). Episodes started from now on get this setting.",
-    )
-    parser.add_argument(
         "--prelude-tasks", type=int, default=0,
         help="before its task the oracle completes 1 to this many other tasks of a chain (drawn per episode, "
              "never a lift), unrecorded, so the episode starts where a chain's earlier tasks leave the scene "
              "and the hand (data for the later tasks of 5-task chains; default 0: from the start posture). "
-             "Episodes started from now on get this setting.",
-    )
-    parser.add_argument(
-        "--stacked-picks", type=float, default=0.0, metavar="FRACTION",
-        help="this fraction of the lift, place in bowl and stack episodes (drawn per episode) start with a stack "
-             "and pick up its top block, a grasp 5-task chains ask for (default 0: their scenes have no stack). "
              "Episodes started from now on get this setting.",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -279,9 +235,6 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
                              "chain's later tasks, a task after --prelude) the hand first goes back to the start "
                              "posture's pose, scripted, and the policy acts once the arm has settled there (or after "
                              "108 steps); those steps count against the task's")
-    parser.add_argument("--stacked-picks", action="store_true",
-                        help="every lift, place in bowl and stack episode starts with a stack and picks up its top "
-                             "block, as a chain may ask (the single-task scenes have no stack); other tasks as usual")
     parser.add_argument("--hold-check", type=float, default=None, metavar="SECONDS",
                         help="after each success hold the hand still this long (the gripper keeping its last command) "
                              "and ask the task's predicate again; the report adds the successes that lasted, and "

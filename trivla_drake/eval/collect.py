@@ -6,24 +6,12 @@ until it has `episodes_per_task` successes (at most `2 N + 5` attempts); failure
 committed one at a time in a fixed order, so a killed run leaves every finished episode readable,
 and running the same command again resumes: attempts already committed or failed are skipped.
 
-With `action_noise` > 0 the applied actions are disturbed in bursts (DART, eval/action_noise.py);
-the recorded actions stay the oracle's and each episode's metadata lists its disturbed frames.
-With `yaw_twists` the hand's yaw is twisted once on its way down to the first grasp and the oracle
-turns back before going on down (eval/action_noise.py, `YawTwists`); disturbed frames are listed as
-with `action_noise`.
-With `missed_grasps` the first grasp is made to miss (the hand closes off the block) and the oracle
-opens, rises and grasps again (eval/missed_grasps.py); disturbed frames are listed as with `action_noise`.
-With `approach_drifts` the hand is pushed sideways and turned once on its way down to the first grasp
-and the oracle centres it again before going on down (eval/approach_drifts.py); disturbed frames are
-listed as with `action_noise`.
-With `takeover` (a TriVLA checkpoint) that learned policy drives first and the oracle takes over from
-where it left the hand (eval/policy_takeover.py, DAgger-style data); the policy's steps are listed as
-disturbed frames, as with `action_noise`.
+With `action_noise` > 0 the applied actions are disturbed in bursts (DART: the registered perturbation "dart",
+eval/perturbations.py); the recorded actions stay the oracle's and each episode's metadata lists its disturbed
+frames.
 With `prelude_tasks` > 0 the oracle first completes 1 to `prelude_tasks` other tasks of a chain (drawn
 per attempt), unrecorded, and the episode starts where they left the scene and the hand, as the later
 tasks of a chain do (eval/episode.py, `run_episode(prelude=...)`); each episode's metadata lists them.
-With `detours` > 0 the oracle first visits places just above the blocks the instruction does not
-name (tasks/motions.py, `detours`); each episode's metadata records how many.
 """
 
 from __future__ import annotations
@@ -34,7 +22,7 @@ import logging
 import shutil
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -42,25 +30,17 @@ import numpy as np
 
 from trivla_drake.data.lerobot import (
     ACTION_NOISE_KEY,
-    APPROACH_DRIFTS_KEY,
-    DETOURS_KEY,
     EPISODE_TASK_KEY,
-    MISSED_GRASPS_KEY,
     PERTURBED_FRAMES_KEY,
     PRELUDE_KEY,
-    STACKED_PICK_KEY,
-    TAKEOVER_KEY,
-    YAW_TWISTS_KEY,
     LeRobotWriter,
     image_stats,
     vector_feature,
     video_feature,
 )
-from trivla_drake.eval.action_noise import Disturbance, PerturbationBursts, YawTwists
-from trivla_drake.eval.approach_drifts import ApproachDrifts
+from trivla_drake.eval.action_noise import Disturbance
 from trivla_drake.eval.evaluate import check_episode_count, results_in_order
-from trivla_drake.eval.missed_grasps import MissedGrasps
-from trivla_drake.eval.policy_takeover import PolicyTakeover
+from trivla_drake.eval.perturbations import make_perturbation
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 from trivla_drake.tasks.chains import CHAIN_LENGTH
 from trivla_drake.tasks.suite import TASK_NAMES, check_run_settings
@@ -98,29 +78,10 @@ class CollectConfig:
     # Perturbation bursts on the applied actions, as a multiple of the default burst rate (DART, see
     # eval/action_noise.py); 0 = clean demonstrations. Recorded per episode, so a resumed run may change it.
     action_noise: float = 0.0
-    # Places just above blocks the instruction does not name that the oracle visits before its task
-    # (motions.detours): data for binding the instruction grounding, not for imitation. Recorded per
-    # episode (DETOURS_KEY), so a resumed run may change it.
-    detours: int = 0
-    # Twist the hand's yaw once on its way down to the first grasp; the oracle turns back before it
-    # goes on down (eval/action_noise.py, YawTwists). Recorded per episode (YAW_TWISTS_KEY).
-    yaw_twists: bool = False
-    # Make the first grasp miss (closing the hand off the block); the oracle opens, rises and grasps
-    # again (eval/missed_grasps.py). Recorded per episode (MISSED_GRASPS_KEY).
-    missed_grasps: bool = False
-    # Push the hand sideways and turn it once on its way down to the first grasp; the oracle centres it
-    # again before it goes on down (eval/approach_drifts.py). Recorded per episode (APPROACH_DRIFTS_KEY).
-    approach_drifts: bool = False
-    # A TriVLA checkpoint folder: that policy drives first, for a drawn number of steps or until it closes
-    # the hand, then the oracle takes over (eval/policy_takeover.py). Recorded per episode (TAKEOVER_KEY).
-    takeover: str | None = None
     # Before its task the oracle completes 1 to this many other tasks of a chain (drawn per attempt),
     # unrecorded, so the episode starts where a chain's earlier tasks leave the scene and the hand
     # (0: from the start posture). Recorded per episode (PRELUDE_KEY, the tasks' names).
     prelude_tasks: int = 0
-    # This fraction of the lift, place in bowl and stack episodes (drawn per attempt) start with a stack and pick
-    # up its top block (`run_episode(stacked_pick=True)`), a grasp chains ask for (results/chain_lifts/).
-    stacked_picks: float = 0.0
 
     def validate(self) -> None:
         check_episode_count(self.episodes_per_task, "--episodes-per-task")
@@ -130,43 +91,16 @@ class CollectConfig:
             raise ValueError(f"image size must be an even number >= 16, got {self.image_size}")
         if not self.tasks:
             raise ValueError("--tasks is empty")
-        disturbance = self.disturbance()  # validates --action-noise, --takeover's folder
-        if isinstance(disturbance, PolicyTakeover):
-            disturbance.check()  # a checkpoint that does not load fails here, not in every attempt
-        chosen = [name for name, on in (("--action-noise", bool(self.action_noise)), ("--yaw-twists", self.yaw_twists),
-                                        ("--missed-grasps", self.missed_grasps),
-                                        ("--approach-drifts", self.approach_drifts),
-                                        ("--takeover", bool(self.takeover))) if on]
-        if len(chosen) > 1:
-            raise ValueError(f"{' and '.join(chosen)} cannot be combined: collect them into the same dataset in "
-                             "separate runs")
-        if isinstance(self.detours, bool) or not isinstance(self.detours, int) or self.detours < 0:
-            raise ValueError(f"--detours must be an integer >= 0, got {self.detours!r}")
+        self.disturbance()  # validates --action-noise
         if (isinstance(self.prelude_tasks, bool) or not isinstance(self.prelude_tasks, int)
                 or not 0 <= self.prelude_tasks <= MAX_PRELUDE_TASKS):
             raise ValueError(f"--prelude-tasks must be an integer from 0 to {MAX_PRELUDE_TASKS} (a chain has "
                              f"{MAX_PRELUDE_TASKS + 1} tasks), got {self.prelude_tasks!r}")
-        if isinstance(self.stacked_picks, bool) or not isinstance(self.stacked_picks, (int, float)) \
-                or not 0.0 <= self.stacked_picks <= 1.0:
-            raise ValueError(f"--stacked-picks must be a fraction from 0 to 1, got {self.stacked_picks!r}")
-        if self.stacked_picks and self.prelude_tasks:
-            raise ValueError("--stacked-picks and --prelude-tasks cannot be combined: a prelude redraws the block to "
-                             "pick up in the scene it leaves")
-        check_run_settings(self.tasks, self.seed, self.stacked_picks)
+        check_run_settings(self.tasks, self.seed)
 
     def disturbance(self) -> Disturbance | None:
-        """The yaw twists of `yaw_twists`, the missed grasps of `missed_grasps`, the drifts of
-        `approach_drifts`, the policy of `takeover`, or the perturbation bursts of `action_noise` (None
-        when 0)."""
-        if self.yaw_twists:
-            return YawTwists()
-        if self.missed_grasps:
-            return MissedGrasps()
-        if self.approach_drifts:
-            return ApproachDrifts()
-        if self.takeover:
-            return PolicyTakeover(self.takeover)
-        return PerturbationBursts.scaled(self.action_noise) if self.action_noise else None
+        """The perturbation bursts of `action_noise` (the registered perturbation "dart"; None when 0)."""
+        return make_perturbation("dart", scale=self.action_noise) if self.action_noise else None
 
     def max_attempts(self) -> int:
         return 2 * self.episodes_per_task + 5
@@ -187,25 +121,16 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     """Run one oracle attempt; on success stage its videos. Top level: runs in workers."""
     from trivla_drake.eval.episode import derive_seed, run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
-    from trivla_drake.tasks.suite import STACKED_PICK_TASKS
 
     seed = derive_seed(config.seed, task, attempt)
-    oracle = OraclePolicy(detours=config.detours, turn_first=config.yaw_twists, regrasp=config.missed_grasps,
-                          align_first=config.approach_drifts or bool(config.takeover),
-                          resume_descent=bool(config.takeover))
     prelude = 0
     if config.prelude_tasks:
         prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
-    stacked = task in STACKED_PICK_TASKS and bool(
-        np.random.default_rng(derive_seed(seed, "stacked_picks")).random() < config.stacked_picks)
-    disturbance = config.disturbance()
-    if isinstance(disturbance, PolicyTakeover):  # the expert plans again from where the policy hands back
-        disturbance = replace(disturbance, expert=oracle)
     result = run_episode(
-        task, seed, oracle, image_size=config.image_size, keep_trajectory=True, action_noise=disturbance,
-        prelude=prelude, prelude_policy=OraclePolicy() if prelude else None, stacked_pick=stacked,
+        task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True,
+        perturbation=config.disturbance(), prelude=prelude, prelude_policy=OraclePolicy() if prelude else None,
     )
-    out = {"task": task, "attempt": attempt, **result.to_dict(), "stacked_pick": stacked}
+    out = {"task": task, "attempt": attempt, **result.to_dict()}
     if not result.success:
         return out
     from trivla_drake.data.video import write_video
@@ -285,8 +210,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                desc="collect", unit="ep", disable=not progress)
     pool = None
     if config.workers > 1:
-        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"),
-                                   initializer=_takeover_worker_init if config.takeover else None)
+        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"))
     try:
         while True:
             batch = _next_batch(config, done, state.failed)
@@ -311,13 +235,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         # Every setting's column on every episode (EPISODE_COLUMN_DEFAULTS where unused): one schema.
                         PERTURBED_FRAMES_KEY: result["perturbed_frames"],  # empty without a disturbance
                         ACTION_NOISE_KEY: float(config.action_noise),
-                        YAW_TWISTS_KEY: bool(config.yaw_twists),
-                        MISSED_GRASPS_KEY: bool(config.missed_grasps),
-                        APPROACH_DRIFTS_KEY: bool(config.approach_drifts),
-                        TAKEOVER_KEY: Path(config.takeover).resolve().name if config.takeover else "",
-                        DETOURS_KEY: int(config.detours),
                         PRELUDE_KEY: list(result.get("prelude") or ()),
-                        STACKED_PICK_KEY: bool(result.get("stacked_pick")),
                     },
                 )
                 done[task].add(attempt)
@@ -354,12 +272,6 @@ def _fresh_attempts(task: str, need: int, max_attempts: int, tried: set[int]) ->
     """(task, attempt) of the first `need` attempts below `max_attempts` not in `tried`."""
     fresh = (attempt for attempt in range(max_attempts) if attempt not in tried)
     return ((task, attempt) for attempt in itertools.islice(fresh, max(need, 0)))
-
-
-def _takeover_worker_init() -> None:
-    import torch
-
-    torch.set_num_threads(1)  # each worker's learned policy (--takeover) on one core: threads would fight
 
 
 def _run_ordered(config: CollectConfig, batch: Iterable[tuple[str, int]], pool):

@@ -253,16 +253,16 @@ def _run_subtask(
 
 def _run_prelude(
     env: TabletopEnv, obs: dict, policy: Policy, task_name: str, count: int, rng: np.random.Generator,
-    paraphrase: bool, draw=prelude_task,
+    paraphrase: bool,
 ) -> tuple[dict, TaskInstance | None, list[str], str]:
     """`policy` completes `count` other tasks of a chain from the env's current state, unrecorded, each
-    drawn by `draw(scene, rng, exclude)` (default: uniform over the tasks possible); then `task_name`'s
+    drawn by `tasks.chains.prelude_task` (uniform over the tasks possible); then `task_name`'s
     parameters and instruction are drawn in the state they left. Returns (obs, the instance or None,
     the tasks completed, why there is no instance)."""
     done: list[str] = []
     unrecorded = _Recorder(False, None, env.action_space.control_rate_hz)
     for _ in range(count):
-        step = draw(env.scene(), rng, exclude={task_name, *done})
+        step = prelude_task(env.scene(), rng, exclude={task_name, *done})
         if step is None:
             return obs, None, done, f"prelude: no task can run after {done or 'the start'}"
         sub, obs = _run_subtask(env, obs, policy, step, int(rng.integers(2**31)), get_task(step.task).max_steps,
@@ -289,11 +289,9 @@ def run_episode(
     keep_trajectory: bool = False,
     max_steps: int | None = None,
     scenario: Scenario | None = None,
-    action_noise: Disturbance | None = None,
+    perturbation: Disturbance | None = None,
     prelude: int = 0,
     prelude_policy: Policy | None = None,
-    prelude_draw=None,
-    stacked_pick: bool = False,
     hold_check: float | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
@@ -302,20 +300,15 @@ def run_episode(
     command, and the task's predicate asked again (`EpisodeResult.lasted`): a stacked block let go tilted, which the
     predicate counts at the instant it holds, may have fallen off by then (results/predicate_audit/).
 
-    `stacked_pick` (lift, place in bowl, stack): the scene starts with a stack and the block to pick up is on
-    top of it (`sample_task_instance`), a grasp a chain may ask for and a single task otherwise never does.
-
-    `action_noise` disturbs the applied actions in bursts, twists the hand's yaw once on its way
-    down to the first grasp (DART data collection, eval/action_noise.py), or makes the first grasp
-    miss (eval/missed_grasps.py), or pushes the hand off on its way down (eval/approach_drifts.py); its random draws
-    come from their own stream derived from `seed`, so the scene is the same with and without).
+    `perturbation` (a registered perturbation, eval/perturbations.py, e.g. DART's bursts) disturbs the applied
+    actions; its random draws come from their own stream derived from `seed`, so the scene is the same with and
+    without.
 
     With `prelude` > 0, `prelude_policy` (privileged: the oracle) first completes that many other tasks
     of a chain (never a lift, which leaves a block in the hand), unrecorded and undisturbed, and the
     episode's task starts where they left the scene and the hand, as the later tasks of a chain do;
     its parameters and instruction are drawn in that state. A prelude that fails, or leaves the task
-    no way to start, fails the episode with the reason. `prelude_draw(scene, rng, exclude)` chooses each
-    prelude task instead (a TaskInstance, or None where none fits; default `tasks.chains.prelude_task`).
+    no way to start, fails the episode with the reason.
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
     never escapes. `image_size` None renders no images unless the policy uses them or a video is
@@ -332,7 +325,7 @@ def run_episode(
         image_size = 224
     env = shared_env(image_size, scenario)
     rng = np.random.default_rng(seed)
-    spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase, stacked_pick=stacked_pick)
+    spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase)
     recorder = _Recorder(keep_trajectory, video_path, env.action_space.control_rate_hz)
     policy_seed = int(rng.integers(2**31))
     done: list[str] = []
@@ -341,8 +334,7 @@ def run_episode(
         obs = env.reset(spec)
         if prelude:
             obs, chained, done, why = _run_prelude(env, obs, prelude_policy, task_name, prelude,
-                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase,
-                                                   prelude_draw or prelude_task)
+                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase)
             instance = chained or instance
             if recorder.needs_images(env):  # the unrecorded prelude's last step rendered none
                 obs.update(env.images())
@@ -350,8 +342,8 @@ def run_episode(
             result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0, why)
         else:
             disturbance = None
-            if action_noise is not None:
-                disturbance = action_noise.start(np.random.default_rng(derive_seed(seed, "action_noise")))
+            if perturbation is not None:
+                disturbance = perturbation.start(np.random.default_rng(derive_seed(seed, "action_noise")))
             result, obs = _run_subtask(
                 env, obs, policy, instance, policy_seed, max_steps or task.max_steps, recorder, disturbance,
                 hold_steps(env, hold_check)

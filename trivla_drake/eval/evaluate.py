@@ -70,13 +70,9 @@ class EvalConfig:
     # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
     # way to start is redrawn (it is no failure of the policy).
     prelude: int = 0
-    # Learned policies only: at the start of every task that does not start the episode (a chain's later tasks,
-    # a task after a prelude) the hand first goes back to the start posture's pose, scripted, and the policy
-    # acts once the arm has settled there or 108 steps are spent (eval/home_first.py); its steps count.
-    home_first: bool = False
-    # Every lift, place in bowl and stack episode starts with a stack, its block to pick up on top (a grasp chains
-    # ask for and the single tasks' scenes never have, results/chain_lifts/); the other tasks are unchanged.
-    stacked_picks: bool = False
+    # Registered policy wrappers (eval/policy_wrappers.py) around the policy, the first innermost; e.g. "home_first"
+    # (learned policies: every task that does not start the episode first homes the hand, eval/home_first.py).
+    policy_wrappers: list[str] = field(default_factory=list)
     # Seconds the hand is held still after each success (the gripper keeping its last command) before the task's
     # predicate is asked again; the report then also counts the successes that lasted (None: no hold check).
     # Successes are still counted when the predicate first holds, as CALVIN counts them (results/predicate_audit/).
@@ -91,7 +87,7 @@ class EvalConfig:
         check_episode_count(self.chains, "--chains", minimum=0)
         if not self.tasks and self.chains <= 0:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
-        check_run_settings(self.tasks, self.seed, self.stacked_picks)
+        check_run_settings(self.tasks, self.seed)
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
         if isinstance(self.prelude, bool) or not isinstance(self.prelude, int) or not 0 <= self.prelude < CHAIN_LENGTH:
@@ -109,22 +105,19 @@ class EvalConfig:
             from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay
 
             check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
-        if self.stacked_picks:
-            if not self.tasks:
-                raise ValueError("--stacked-picks applies to single-task episodes (--tasks with --episodes >= 1)")
-            if self.prelude:
-                raise ValueError("--stacked-picks and --prelude cannot be combined: a prelude redraws the block to "
-                                 "pick up in the scene it leaves")
         from trivla_drake.eval.episode import check_hold_check
 
         check_hold_check(self.hold_check, "--hold-check")
-        if self.home_first and self.policy == "oracle":
+        from trivla_drake.eval.policy_wrappers import check_policy_wrappers
+
+        check_policy_wrappers(self.policy_wrappers)
+        if "home_first" in self.policy_wrappers and self.policy == "oracle":
             raise ValueError("--home-first applies to learned policies, not to --policy oracle (it plans from "
                              "wherever the hand is)")
 
     def policy_key(self) -> tuple:
         """What loads this config's policy (see `_policy`)."""
-        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay, self.home_first
+        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay, tuple(self.policy_wrappers)
 
 
 def check_episode_count(count: int, flag: str, *, minimum: int = 1) -> int:
@@ -136,26 +129,22 @@ def check_episode_count(count: int, flag: str, *, minimum: int = 1) -> int:
 
 
 def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | None = None,
-            ensemble_decay: float | None = None, home_first: bool = False):
-    """The policy `spec` with these TriVLA inference settings (wrapped in HomeFirst with `home_first`),
-    loaded once per process."""
+            ensemble_decay: float | None = None, wrappers: tuple[str, ...] = ()):
+    """The policy `spec` with these TriVLA inference settings inside the registered policy `wrappers`, loaded once
+    per process."""
     from trivla_drake.eval.policies import load_policy
+    from trivla_drake.eval.policy_wrappers import wrap_policy
 
-    key = (spec, noise_scale, execute_steps, ensemble_decay, home_first)
+    key = (spec, noise_scale, execute_steps, ensemble_decay, tuple(wrappers))
     if key not in _POLICY_CACHE:
         policy = load_policy(spec, noise_scale, execute_steps=execute_steps, ensemble_decay=ensemble_decay)
-        if home_first:
-            from trivla_drake.eval.home_first import HomeFirst
-
-            policy = HomeFirst(policy)
-        _POLICY_CACHE[key] = policy
+        _POLICY_CACHE[key] = wrap_policy(policy, wrappers)
     return _POLICY_CACHE[key]
 
 
 def _run_job(config: EvalConfig, job: tuple) -> dict:
     """One episode or chain; top level so that worker processes can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
-    from trivla_drake.tasks.suite import STACKED_PICK_TASKS
 
     policy = _policy(*config.policy_key())
     kind, name, index = job
@@ -175,7 +164,6 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 max_steps=config.max_steps,
                 prelude=config.prelude,
                 prelude_policy=_policy("oracle") if config.prelude else None,
-                stacked_pick=config.stacked_picks and name in STACKED_PICK_TASKS,
                 hold_check=config.hold_check,
             )
             if not (config.prelude and result.reason.startswith("prelude")):

@@ -129,18 +129,6 @@ def _fingers_ready(observation: dict, gripper: float) -> bool:
     return gripper != GRIPPER_OPEN or _width(observation) >= OPEN_WIDTH_M
 
 
-def run_homing(env, obs: dict, *, settle: bool = True, images: bool = True) -> tuple[dict, int]:
-    """Steps a TabletopEnv through one homing from its current state (`obs`, its last observation), outside any
-    task: (the observation it hands over in, the steps taken). For diagnostics (results/prelude_reset/)."""
-    homing, steps = Homing(settle=settle), 0
-    homing.start()
-    while (rows := homing.rows(obs)) is not None:
-        for action in rows:
-            obs = env.step(np.asarray(action, dtype=float), images=images)
-            steps += 1
-    return obs, steps
-
-
 class HomeFirst:
     """Wraps a Policy (reset / act): each reset starts a homing phase (`Homing`: at most `max_steps` control
     steps; none for a task at simulated time 0) that ends when the commanded pose has reached the start

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trivla_drake.action import ACTION_NAMES
-from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, check_calibration, check_looks_down
 
 PANDA_STATE_NAMES: tuple[str, ...] = tuple(
     [f"panda_joint{i}_position" for i in range(1, 8)]
@@ -25,17 +24,6 @@ PANDA_STATE_NAMES: tuple[str, ...] = tuple(
 
 EE_DELTA_ACTION_NAMES: tuple[str, ...] = ACTION_NAMES
 """The default 7-D action: relative end-effector pose change, then a gripper command."""
-
-
-# How System 2's VQA next-token loss is averaged (`VisionLanguageModule.vlm_losses`): over the batch's
-# answer tokens, or per answer.
-VLM_LOSS_WEIGHTINGS = ("token", "answer")
-
-
-def check_vlm_loss_weighting(weighting: str) -> None:
-    """Raises ValueError naming `vlm_loss_weighting` unless it is one of VLM_LOSS_WEIGHTINGS."""
-    if weighting not in VLM_LOSS_WEIGHTINGS:
-        raise ValueError(f"vlm_loss_weighting must be one of {', '.join(VLM_LOSS_WEIGHTINGS)}; got {weighting!r}")
 
 
 @dataclass
@@ -77,10 +65,6 @@ class VisionLanguageConfig:
     select_layer: int = 12  # Q_vl = output of this LLM decoder layer (1-based), not the last one
     drop_unused_llm_layers: bool = True  # build only `select_layer` layers (GR00T does); False keeps all
     max_instruction_tokens: int = 128  # longer instructions are rejected
-    # Batch-normalise the projected image tokens (per token position and channel) before the LLM. Not
-    # in Eagle-2: an aid for System 2 trained from scratch, whose image tokens are otherwise ~99%
-    # the same in every scene, so its LLM learns to answer from the question alone.
-    image_token_norm: bool = False
     # Classes of a linear head on each projected image token that says which blocks its image cell
     # shows (`VisionLanguageModule.block_head`), trained by the vlm stage's dense loss
     # (`train --dense-weight`) from the renderer's label images so the vision tower learns where the
@@ -164,7 +148,7 @@ class DynamicsConfig:
     # shares them by every observation, so F_p is a function of the frame and instruction alone;
     # "random" draws them anew each call (from the caller's seed). With random noise the features of
     # our small System 3 hold no block position a linear probe finds (R^2 -0.04); fixed: 0.19
-    # (`trivla-drake probe`, results/feature_probe*.md).
+    # (a linear probe, at git tag research-archive).
     feature_noise: str = "fixed"
     feature_noise_seed: int = 0
     train_log_sigma_mean: float = 0.7  # log-normal sigma sampling for eq. (1) (SVD fine-tuning)
@@ -221,12 +205,6 @@ class PolicyConfig:
     # tcp_features; System 1 then needs the robot state with Q_s (`TriVLA.sample_actions(state=...)`).
     # Off in checkpoints saved before it existed; `train --stage policy --subgoal-offset` turns it on.
     subgoal_offset: bool = False
-    # The instruction grounding also reads the tool-centre point's features (position and orientation),
-    # so it can place the sub-goal from the wrist view, as an offset from the gripper, and not only from
-    # the static view's coarse tokens. Needs instruction_grounding and tcp_features; the grounding then
-    # needs the robot state (`TriVLA.predict_subgoal(..., state=)`). Off in checkpoints saved before it
-    # existed; `train --stage policy --grounding-phase bind --grounding-reads-tcp` turns it on.
-    grounding_reads_tcp: bool = False
     # The instruction grounding also reads how far the gripper is closed (nn/panda_gripper.py), and a
     # second read-out answers while a block is held: one instruction can then name one block before the
     # grasp and another after it ("stack the red block on the blue one"); taught the carrying frames with
@@ -234,24 +212,6 @@ class PolicyConfig:
     # Needs instruction_grounding; the grounding then needs the robot state. Off in checkpoints saved
     # before it existed; `train --stage policy --grounding-phase bind --grounding-reads-gripper` turns it on.
     grounding_reads_gripper: bool = False
-    # The instruction grounding also predicts the hand's yaw at the next gripper event, modulo a quarter
-    # turn (cos 4 psi, sin 4 psi), and an MLP of it and of the turn from the hand's yaw to it is added
-    # to Q_s. In the shipped model before it, most failed grasps came down 40-45 degrees off the block's
-    # faces (results/grasp_yaw). Needs instruction_grounding and tcp_features; System 1 then needs the
-    # robot state. Off in checkpoints saved before it existed; `train --subgoal-yaw` turns it on.
-    subgoal_yaw: bool = False
-    # The instruction grounding anchors its sub-goal on the static camera's image cells (nn/token_anchor.py):
-    # each read-out's query weighs the places on the table those cells look at (from this calibration,
-    # the 12 numbers of nn/camera_cells.py; empty: no anchor). Needs instruction_grounding. Off in
-    # checkpoints saved before it existed; `train --stage policy --grounding-phase bind --grounding-anchor`
-    # turns it on with the scenario's static camera (station/cameras.py: camera_calibration).
-    grounding_anchor_camera: tuple[float, ...] = ()
-    # The anchor also weighs the wrist view's cells, each the place its ray meets the table from the hand's
-    # pose: near a grasp the arm hides the block from the static camera. The wrist camera's calibration in
-    # the tool-centre point's frame (12 numbers, nn/camera_cells.py; empty: static view only). Needs
-    # grounding_anchor_camera and tcp_features; the grounding then needs the robot state.
-    # `train ... --grounding-anchor --grounding-anchor-wrist` turns it on (station/cameras.py).
-    grounding_anchor_wrist_camera: tuple[float, ...] = ()
 
 
 @dataclass
@@ -337,26 +297,9 @@ def validate_config(config: TriVLAConfig) -> None:
         )
     if pol.instruction_grounding and not config.use_system2:
         raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
-    if pol.grounding_reads_tcp and not (pol.instruction_grounding and pol.tcp_features):
-        raise ValueError("policy.grounding_reads_tcp gives the instruction grounding the tcp features: it needs "
-                         "policy.instruction_grounding and policy.tcp_features")
     if pol.grounding_reads_gripper and not pol.instruction_grounding:
         raise ValueError("policy.grounding_reads_gripper gives the instruction grounding the gripper's closure: it "
                          "needs policy.instruction_grounding")
-    if pol.subgoal_yaw and not (pol.instruction_grounding and pol.tcp_features):
-        raise ValueError("policy.subgoal_yaw turns the grounding's yaw into a turn from the hand's yaw: it needs "
-                         "policy.instruction_grounding and policy.tcp_features")
-    if pol.grounding_anchor_camera:
-        if not pol.instruction_grounding:
-            raise ValueError("policy.grounding_anchor_camera anchors the instruction grounding's sub-goal on a "
-                             "camera's image cells: it needs policy.instruction_grounding")
-        check_looks_down(pol.grounding_anchor_camera, ANCHOR_PLANE_HEIGHT, "policy.grounding_anchor_camera")
-    if pol.grounding_anchor_wrist_camera:
-        if not (pol.grounding_anchor_camera and pol.tcp_features):
-            raise ValueError("policy.grounding_anchor_wrist_camera places the wrist view's cells from the hand's "
-                             "pose in the grounding's anchor: it needs policy.grounding_anchor_camera and "
-                             "policy.tcp_features")
-        check_calibration(pol.grounding_anchor_wrist_camera, "policy.grounding_anchor_wrist_camera")
     if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "
                          "policy.instruction_grounding and policy.tcp_features")
@@ -536,7 +479,6 @@ def config_to_dict(config: TriVLAConfig) -> dict[str, Any]:
 # before the field existed was trained and run with (a missing field takes this value; any other missing field
 # is refused, since its default may not be what the checkpoint was made with). Dotted paths under `config`.
 FIELDS_OLDER_CHECKPOINTS_OMIT: dict[str, Any] = {
-    "vision_language.image_token_norm": False,
     "vision_language.dense_classes": 0,
     "vision_language.dense_subcells": 1,
     "dynamics.feature_noise": "random",  # before it, System 3 drew its one-pass noise anew each call
@@ -545,17 +487,26 @@ FIELDS_OLDER_CHECKPOINTS_OMIT: dict[str, Any] = {
     "policy.vl_position_embedding": False,
     "policy.instruction_grounding": False,
     "policy.subgoal_offset": False,
-    "policy.grounding_reads_tcp": False,
     "policy.grounding_reads_gripper": False,
+}
+# Fields of model variants no shipped checkpoint turned on, removed from the code (it is at git tag
+# `research-archive`), each with its off value: a checkpoint that lists one at that value loads (the field is
+# ignored); one that turns it on is refused, naming the field and the tag. Dotted paths under `config`.
+REMOVED_FIELDS: dict[str, Any] = {
+    "vision_language.image_token_norm": False,
+    "policy.grounding_reads_tcp": False,
     "policy.subgoal_yaw": False,
     "policy.grounding_anchor_camera": (),
     "policy.grounding_anchor_wrist_camera": (),
 }
+# The git tag that keeps the code of the REMOVED_FIELDS.
+RESEARCH_ARCHIVE_TAG = "research-archive"
 
 
 def config_from_dict(data: dict[str, Any]) -> TriVLAConfig:
     """Rebuilds a config from `config_to_dict` data; unknown, ill-typed or missing fields raise ValueError
-    naming the dotted field (only FIELDS_OLDER_CHECKPOINTS_OMIT may be missing: they take the value given there)."""
+    naming the dotted field (only FIELDS_OLDER_CHECKPOINTS_OMIT may be missing: they take the value given there;
+    REMOVED_FIELDS are ignored at their off value and refused otherwise)."""
     return _from_dict(TriVLAConfig, data, "config")
 
 
@@ -564,6 +515,7 @@ def _from_dict(cls: type, data: Any, where: str) -> Any:
         raise ValueError(f"{where} must be a JSON object; got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
+    data = without_removed_fields(data, REMOVED_FIELDS, where)
     unknown = set(data) - names
     if unknown:
         raise ValueError(f"{where} has unknown fields {sorted(unknown)}; known: {sorted(names)}")
@@ -572,9 +524,30 @@ def _from_dict(cls: type, data: Any, where: str) -> Any:
         dotted = f"{where}.{name}".partition(".")[2]
         if dotted not in FIELDS_OLDER_CHECKPOINTS_OMIT:
             raise ValueError(f"{where}.{name} is missing (only fields added since older checkpoints were "
-                             f"saved may be, e.g. policy.subgoal_yaw): add it with the value the model was made with")
+                             f"saved may be, e.g. policy.subgoal_offset): add it with the value the model was made with")
         kwargs[name] = FIELDS_OLDER_CHECKPOINTS_OMIT[dotted]
     return cls(**kwargs)
+
+
+def without_removed_fields(data: dict[str, Any], removed: dict[str, Any], where: str) -> dict[str, Any]:
+    """`data` without the fields of `removed` ({dotted name under `where`: off value}) that hold their off value;
+    ValueError naming a removed field that is on, and the git tag that keeps its code."""
+    kept = {}
+    for name, value in data.items():
+        dotted = f"{where}.{name}".partition(".")[2] or name
+        if dotted not in removed:
+            kept[name] = value
+            continue
+        off = removed[dotted]
+        if _plain(value) != _plain(off):
+            raise ValueError(f"{where}.{name} is {value!r}: it turns on a variant this code no longer has (only "
+                             f"{_plain(off)!r} loads); its code is at git tag `{RESEARCH_ARCHIVE_TAG}`")
+    return kept
+
+
+def _plain(value: Any) -> Any:
+    """Tuples as lists (JSON gives lists), for comparing a saved value with an off value."""
+    return list(value) if isinstance(value, (list, tuple)) else value
 
 
 def _coerce(hint: Any, value: Any, where: str) -> Any:

@@ -59,11 +59,6 @@ def normalize_position(position: torch.Tensor) -> torch.Tensor:
     return (position - _CENTRE_TENSOR.to(device=position.device, dtype=position.dtype)) / _SCALE
 
 
-def normalize_displacement(displacement: torch.Tensor) -> torch.Tensor:
-    """Displacements (..., 3) [m] -> the features' position units (scaled, not centred)."""
-    return displacement / _SCALE
-
-
 def denormalize_position(features: torch.Tensor) -> torch.Tensor:
     """The inverse of `normalize_position`: feature units (..., 3) -> positions [m]."""
     return features * _SCALE + _CENTRE_TENSOR.to(device=features.device, dtype=features.dtype)

@@ -11,14 +11,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn import flow_matching
-from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, camera_pose, cell_rays, cell_table_points
 from trivla_drake.nn.config import PolicyConfig
 from trivla_drake.nn.dit import DiffusionTransformer, TimeEmbedding, sinusoidal_embedding
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP
 from trivla_drake.nn.panda_tcp import FEATURE_DIM as TCP_FEATURE_DIM
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer, SequenceStandardizer
 from trivla_drake.nn.instruction_grounding import InstructionGrounding
-from trivla_drake.nn.token_anchor import TokenAnchor
 from trivla_drake.nn.video_former import VideoFormer
 
 
@@ -66,36 +64,6 @@ class SubgoalOffsetEncoder(nn.Module):
     def forward(self, subgoal: torch.Tensor, tcp_position: torch.Tensor) -> torch.Tensor:
         offset = (subgoal.detach() - tcp_position.to(subgoal.dtype)) * self.OFFSET_GAIN
         return self.mlp(offset)
-
-
-def quarter_turn_to(yaw: torch.Tensor, tcp: torch.Tensor) -> torch.Tensor:
-    """The turn delta from the hand's yaw to a yaw given as (cos 4 psi, sin 4 psi) (B, 2), as
-    (cos 4 delta, sin 4 delta) (B, 2) (delta = psi - hand yaw, modulo a quarter turn). `tcp` (B, 9):
-    panda_tcp features, whose rotation's first column (the tcp's x axis, at 3:6) gives the hand's yaw."""
-    hand = 4.0 * torch.atan2(tcp[:, 4], tcp[:, 3]).to(yaw.dtype)
-    ch, sh = torch.cos(hand), torch.sin(hand)
-    c, s = yaw[:, 0], yaw[:, 1]
-    return torch.stack([c * ch + s * sh, s * ch - c * sh], dim=-1)
-
-
-class SubgoalYawEncoder(nn.Module):
-    """The grounding's yaw (cos 4 psi, sin 4 psi) (B, 2) and the turn to it from the hand's own yaw
-    (`quarter_turn_to`) -> a term (B, D) added to Q_s.
-
-    The turn is what the DiT acts on: how far to rotate the wrist, modulo a quarter turn, to close on
-    the block's faces; it would otherwise have to compose it from the yaw and the tcp's rotation
-    features. Detached, with its output layer at zero, as SubgoalOffsetEncoder."""
-
-    def __init__(self, dim: int) -> None:
-        super().__init__()
-        self.mlp = nn.Sequential(nn.Linear(4, dim), nn.SiLU(), nn.Linear(dim, dim))
-        nn.init.zeros_(self.mlp[2].weight)
-        nn.init.zeros_(self.mlp[2].bias)
-
-    def forward(self, yaw: torch.Tensor, tcp: torch.Tensor) -> torch.Tensor:
-        """yaw (B, 2) the grounding's (cos 4 psi, sin 4 psi); tcp (B, 9) panda_tcp features."""
-        yaw = yaw.detach()
-        return self.mlp(torch.cat([yaw, quarter_turn_to(yaw, tcp)], dim=-1))
 
 
 class FlowMatchingPolicy(nn.Module):
@@ -153,12 +121,6 @@ class FlowMatchingPolicy(nn.Module):
                 raise ValueError("policy.subgoal_offset reads the instruction grounding's sub-goal: it needs "
                                  "policy.instruction_grounding")
             self.subgoal_offset = SubgoalOffsetEncoder(dim)
-        self.subgoal_yaw = None
-        if config.subgoal_yaw:
-            if self.grounding is None:
-                raise ValueError("policy.subgoal_yaw is a yaw the instruction grounding predicts: it needs "
-                                 "policy.instruction_grounding")
-            self.subgoal_yaw = SubgoalYawEncoder(dim)
         if self.uses_dynamics:
             frames, channels, size, _ = dynamics_feature_shape
             # One set of statistics per view and feature element, shared by the T+1 frames.
@@ -199,17 +161,13 @@ class FlowMatchingPolicy(nn.Module):
         q_p: torch.Tensor | None,
         tcp: torch.Tensor | None = None,
         gripper: torch.Tensor | None = None,
-        subgoal_shift: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """What the DiT reads: the state token Q_s (B, D) plus the instruction grounding's goal when
         configured (and, with `subgoal_offset`, the sub-goal seen from the tcp position); the
         cross-attention tokens [Q_vl; Q_p] at DiT width (B, M, D) and their mask (B, M); the grounding's
-        predicted sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then its yaw's
-        (cos 4 psi, sin 4 psi)), or None without grounding. `tcp` (B, 9): the tool-centre point's
-        features (panda_tcp), needed with `subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp` or
-        `grounding_anchor_wrist_camera`. `gripper` (B, 1): the gripper's closure (panda_gripper), needed with
-        `grounding_reads_gripper`. `subgoal_shift` (B, 3) in tcp feature units: added to the sub-goal the
-        offset encoder reads, not to the one returned (training noise, `TrainConfig.subgoal_noise`)."""
+        predicted sub-goal (B, 3) in tcp feature units, or None without grounding. `tcp` (B, 9): the tool-centre
+        point's features (panda_tcp), needed with `subgoal_offset`. `gripper` (B, 1): the gripper's closure
+        (panda_gripper), needed with `grounding_reads_gripper`."""
         batch = q_s.shape[0]
         parts, masks = [], []
         subgoal = None
@@ -219,15 +177,11 @@ class FlowMatchingPolicy(nn.Module):
                 if self.reads_tcp and (tcp is None or tuple(tcp.shape) != (batch, TCP_FEATURE_DIM)):
                     got = None if tcp is None else tuple(tcp.shape)
                     raise ValueError(f"tcp must be ({batch}, {TCP_FEATURE_DIM}), the tool-centre point's features "
-                                     f"(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / "
-                                     f"grounding_anchor_wrist_camera); got {got}")
-                goal, subgoal = self._ground(vl, vl_mask, tcp, gripper)
+                                     f"(policy.subgoal_offset); got {got}")
+                goal, subgoal = self._ground(vl, vl_mask, gripper)
                 q_s = q_s + goal.to(q_s.dtype)
                 if self.subgoal_offset is not None:
-                    seen = subgoal[:, :3] if subgoal_shift is None else subgoal[:, :3] + subgoal_shift.to(subgoal.dtype)
-                    q_s = q_s + self.subgoal_offset(seen, tcp[:, :3]).to(q_s.dtype)
-                if self.subgoal_yaw is not None:
-                    q_s = q_s + self.subgoal_yaw(subgoal[:, 3:5], tcp).to(q_s.dtype)
+                    q_s = q_s + self.subgoal_offset(subgoal, tcp[:, :3]).to(q_s.dtype)
             parts.append(vl)
             masks.append(vl_mask)
         if self.uses_dynamics:
@@ -253,49 +207,17 @@ class FlowMatchingPolicy(nn.Module):
 
     @property
     def reads_tcp(self) -> bool:
-        """Whether conditions() needs the tcp features (`subgoal_offset`, `subgoal_yaw`, `grounding_reads_tcp`
-        or `grounding_anchor_wrist_camera`)."""
-        return self.subgoal_offset is not None or self.subgoal_yaw is not None or self.grounding_reads_tcp
-
-    @property
-    def grounding_reads_tcp(self) -> bool:
-        """Whether the instruction grounding reads the tcp features (`grounding_reads_tcp`, or a wrist anchor)."""
-        return self.grounding is not None and self.grounding.reads_tcp
+        """Whether conditions() needs the tcp features (`subgoal_offset`)."""
+        return self.subgoal_offset is not None
 
     def _new_grounding(self) -> InstructionGrounding:
         c = self.config
-        return InstructionGrounding(c.hidden_size, c.num_heads, TCP_FEATURE_DIM if c.grounding_reads_tcp else 0,
-                                    yaw_tokens=self.vl_fixed_positions if c.subgoal_yaw else 0,
-                                    reads_gripper=c.grounding_reads_gripper, **self._anchor_arguments())
+        return InstructionGrounding(c.hidden_size, c.num_heads, reads_gripper=c.grounding_reads_gripper)
 
-    def _anchor_arguments(self) -> dict:
-        """The grounding's anchor (nn/token_anchor.py) on the static view's token cells (`grounding_anchor_camera`)
-        and, with `grounding_anchor_wrist_camera`, the wrist view's, on the plane of a resting block's centre,
-        and where those tokens start in the fixed tokens."""
-        c = self.config
-        if not c.grounding_anchor_camera:
-            return {}
-        (start, count), (wrist_start, _) = self.vl_view_spans or ((0, 0), (0, 0))
-        grid = math.isqrt(count)
-        if count == 0 or grid * grid != count:
-            raise ValueError(f"policy.grounding_anchor_camera anchors on a square grid of static-view image tokens; "
-                             f"this System 2 gives {count}")
-        places = torch.from_numpy(cell_table_points(c.grounding_anchor_camera, grid, ANCHOR_PLANE_HEIGHT,
-                                                     "policy.grounding_anchor_camera")).float()
-        wrist = {}
-        if c.grounding_anchor_wrist_camera:
-            rotation, origin = camera_pose(c.grounding_anchor_wrist_camera)
-            wrist = {"wrist_rays": torch.from_numpy(cell_rays(c.grounding_anchor_wrist_camera, grid,
-                                                                  "policy.grounding_anchor_wrist_camera")).float(),
-                     "wrist_pose": (torch.from_numpy(rotation).float(), torch.from_numpy(origin).float())}
-        anchor = TokenAnchor(c.hidden_size, places, plane_height=ANCHOR_PLANE_HEIGHT, **wrist)
-        return {"anchor": anchor, "anchor_start": start, "anchor_wrist_start": wrist_start}
-
-    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor, tcp: torch.Tensor | None,
+    def _ground(self, vl: torch.Tensor, vl_mask: torch.Tensor,
                 gripper: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         fixed = self.vl_fixed_positions
-        tcp = tcp if self.grounding.reads_tcp else None
-        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], tcp, gripper)
+        return self.grounding(vl[:, fixed:], vl_mask[:, fixed:], vl[:, :fixed], gripper)
 
     def reset_grounding(self) -> None:
         """A fresh instruction grounding in place of this one (drawn from torch's global generator)."""
@@ -325,23 +247,20 @@ class FlowMatchingPolicy(nn.Module):
         return {f"grounding.{name}": p for name, p in self.grounding.held_parameters().items()}
 
     def predict_subgoal(
-        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None,
-        gripper: torch.Tensor | None = None,
+        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, gripper: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """The instruction grounding's sub-goal (B, 3) in tcp feature units (B, 5 with `subgoal_yaw`: then
-        its yaw's (cos 4 psi, sin 4 psi)), from Q_vl (and, with `grounding_reads_tcp`, the tcp
-        features (B, 9); with `grounding_reads_gripper`, the gripper's closure (B, 1))."""
-        return self.ground(q_vl, q_vl_mask, tcp, gripper)[1]
+        """The instruction grounding's sub-goal (B, 3) in tcp feature units, from Q_vl (and, with
+        `grounding_reads_gripper`, the gripper's closure (B, 1))."""
+        return self.ground(q_vl, q_vl_mask, gripper)[1]
 
     def ground(
-        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, tcp: torch.Tensor | None = None,
-        gripper: torch.Tensor | None = None,
+        self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None = None, gripper: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The instruction grounding's goal token (B, D), which the DiT reads, and its sub-goal (as
         `predict_subgoal`), from Q_vl and the same optional inputs."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
-        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), tcp, gripper)
+        return self._ground(*self._vl_tokens(q_vl, q_vl_mask), gripper)
 
     # ------------------------------------------------------------------ flow matching
 

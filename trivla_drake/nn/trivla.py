@@ -10,7 +10,6 @@ Actions leave the model unnormalised; the model applies the normalisation statis
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -23,7 +22,7 @@ from trivla_drake.nn.config import TriVLAConfig, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
 from trivla_drake.nn.panda_gripper import gripper_closure
-from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position, normalize_displacement
+from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
@@ -110,8 +109,6 @@ class TriVLA(nn.Module):
             vl_dim=self.vision_language.hidden_size if self.vision_language else None,
             dynamics_feature_shape=self.dynamics.feature_shape if self.dynamics else None,
             vl_fixed_positions=self.vision_language.instruction_offset(2) if self.vision_language else 0,
-            vl_view_spans=(self.vision_language.image_token_span(0), self.vision_language.image_token_span(1))
-            if self.vision_language else (),
         )
 
     def reset_system1(self, seed: int, keep_binding: bool = False) -> None:
@@ -274,30 +271,14 @@ class TriVLA(nn.Module):
         features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
-    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None, subgoal_shift=None):
+    def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):
         """System 1's conditions (FlowMatchingPolicy.conditions): Q_s with the grounding's goal, memory,
         memory mask, predicted sub-goal or None. `state` (B, state_dim), unnormalised, is read only
-        with policy.subgoal_offset or policy.grounding_reads_tcp (the tcp features) or
-        policy.grounding_reads_gripper (the gripper's closure); ValueError when such a model gets none.
-        `subgoal_shift` (B, 3) in tcp feature units: added to the sub-goal the offset encoder reads (training only)."""
+        with policy.subgoal_offset (the tcp features) or policy.grounding_reads_gripper (the gripper's
+        closure); ValueError when such a model gets none."""
         q_p = self.policy.aggregate_dynamics(f_static, f_wrist) if self.dynamics is not None else None
         return self.policy.conditions(q_s, q_vl if self.vision_language is not None else None, q_vl_mask, q_p,
-                                      self._tcp_for_policy(state, q_s.dtype), self._gripper_for_grounding(state),
-                                      subgoal_shift=subgoal_shift)
-
-    def _subgoal_shift(self, batch: int, noise: float, generator: torch.Generator | None) -> torch.Tensor | None:
-        """Gaussian noise of standard deviation `noise` [m] along x and y, none in height, in tcp feature units
-        (B, 3), for the sub-goal System 1's offset encoder reads in training; None when `noise` is 0."""
-        if not noise:
-            return None
-        if not (math.isfinite(noise) and noise > 0):
-            raise ValueError(f"subgoal_noise must be a finite standard deviation >= 0 [m]; got {noise}")
-        if self.policy.subgoal_offset is None:
-            raise ValueError("subgoal_noise moves the sub-goal System 1's offset encoder reads: this model has none "
-                             "(policy.subgoal_offset is off)")
-        shift = torch.zeros(batch, 3)
-        shift[:, :2] = torch.randn(batch, 2, generator=generator) * noise  # the trainer's generator is a CPU one
-        return normalize_displacement(shift).to(self.device)
+                                      self._tcp_for_policy(state, q_s.dtype), self._gripper_for_grounding(state))
 
     def _gripper_for_grounding(self, state: torch.Tensor | None) -> torch.Tensor | None:
         """The gripper's closure (B, 1) of unnormalised states when System 1's grounding reads it
@@ -311,13 +292,12 @@ class TriVLA(nn.Module):
 
     def _tcp_for_policy(self, state: torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor | None:
         """The tcp features (B, 9) of unnormalised states when System 1 reads them beyond Q_s
-        (policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / grounding_anchor_wrist_camera), else None."""
+        (policy.subgoal_offset), else None."""
         if not self.policy.reads_tcp:
             return None
         if state is None:
             raise ValueError("state is required: this System 1 reads the tool-centre point beside Q_s "
-                             "(policy.subgoal_offset / subgoal_yaw / grounding_reads_tcp / "
-                             "grounding_anchor_wrist_camera), which it computes from the robot state Q_s was encoded from")
+                             "(policy.subgoal_offset), which it computes from the robot state Q_s was encoded from")
         return self.tcp_features(state).to(dtype)
 
     def sample_actions_batch(
@@ -335,7 +315,7 @@ class TriVLA(nn.Module):
     ) -> torch.Tensor:
         """System 1 on a batch: Video Former once, then Euler flow-matching steps -> unnormalised (B, H, A).
         `state` (B, state_dim), unnormalised: needed only with policy.subgoal_offset (or another option
-        that reads the tcp or the gripper: subgoal_yaw, grounding_reads_tcp, grounding_reads_gripper)."""
+        that reads the gripper: grounding_reads_gripper)."""
         embodiment_id = torch.as_tensor(embodiment_id, device=self.device)
         check_embodiment_ids(embodiment_id, self.config.policy.num_embodiments)
         q_s, memory, mask, _ = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
@@ -368,38 +348,11 @@ class TriVLA(nn.Module):
     ) -> np.ndarray:
         """Where System 1's instruction grounding puts the next gripper event: float64 (3,), the
         tool-centre-point position [m] in the arm's base frame (ValueError without a grounding).
-        `state` (state_dim,), the unnormalised robot state: required when the grounding reads the tcp
-        (policy.grounding_reads_tcp, grounding_anchor_wrist_camera)."""
-        return self.predict_grounding(static_rgb, wrist_rgb, instruction, state)[0]
-
-    @torch.inference_mode()
-    def predict_subgoal_yaw(
-        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
-    ) -> float:
-        """The hand's yaw [rad] System 1's instruction grounding predicts at the next gripper event,
-        modulo a quarter turn: in (-pi/4, pi/4] (ValueError without policy.subgoal_yaw)."""
-        if not self.config.policy.subgoal_yaw:
-            raise ValueError("this model's grounding predicts no yaw (policy.subgoal_yaw is off)")
-        return self.predict_grounding(static_rgb, wrist_rgb, instruction, state)[1]
-
-    @torch.inference_mode()
-    def predict_grounding(
-        self, static_rgb: np.ndarray, wrist_rgb: np.ndarray, instruction: str, state: np.ndarray | None = None
-    ) -> tuple[np.ndarray, float | None]:
-        """Both of the grounding's answers from one pass: the sub-goal position (as `predict_subgoal`)
-        and, with policy.subgoal_yaw, its yaw (as `predict_subgoal_yaw`; None without)."""
-        subgoal = self._grounding_output(static_rgb, wrist_rgb, instruction, state)
-        yaw = math.atan2(float(subgoal[4]), float(subgoal[3])) / 4.0 if len(subgoal) == 5 else None
-        return denormalize_position(subgoal[:3]).numpy(), yaw
-
-    def _grounding_output(self, static_rgb, wrist_rgb, instruction, state) -> torch.Tensor:
-        """The grounding's raw sub-goal of one observation, float64 (3,) or (5,) (see predict_subgoal)."""
+        `state` (state_dim,), the unnormalised robot state: required when the grounding reads the gripper
+        (policy.grounding_reads_gripper)."""
         if self.policy.grounding is None:
             raise ValueError("this model has no instruction grounding (policy.instruction_grounding is off)")
         pol = self.config.policy
-        if state is None and self.policy.grounding_reads_tcp:
-            raise ValueError("state is required: this model's grounding reads the tool-centre point "
-                             "(policy.grounding_reads_tcp / grounding_anchor_wrist_camera)")
         if state is None and pol.grounding_reads_gripper:
             raise ValueError("state is required: this model's grounding reads the gripper's closure "
                              "(policy.grounding_reads_gripper)")
@@ -407,7 +360,7 @@ class TriVLA(nn.Module):
         q_vl, _ = self.encode_vision_language(static_rgb, wrist_rgb, instruction, state)
         subgoal = self.subgoal_of_features(torch.as_tensor(q_vl, dtype=torch.float32, device=self.device)[None], None,
                                            torch.from_numpy(state)[None].to(self.device))
-        return subgoal[0].double().cpu()
+        return denormalize_position(subgoal[0].double().cpu()).numpy()
 
     @torch.inference_mode()
     def encode_state(self, state: np.ndarray, embodiment_id: int = 0) -> np.ndarray:
@@ -546,7 +499,6 @@ class TriVLA(nn.Module):
         generator: torch.Generator | None = None,
         train_systems_2_3: bool = False,
         grounding_weight: float = 1.0,
-        subgoal_noise: float = 0.0,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """System 1's flow-matching loss (eq. 5 with velocity regression) on a batch of B samples.
 
@@ -560,9 +512,6 @@ class TriVLA(nn.Module):
         With `policy.instruction_grounding`, also "subgoal_position" float (B, 3) [m] (data/subgoals.py)
         and optionally "subgoal_in_loss" bool (B,) (only those rows count): the loss adds
         `grounding_weight` x the grounding's sub-goal loss.
-        `subgoal_noise` [m] (with policy.subgoal_offset): the sub-goal the offset encoder reads is moved by
-        Gaussian noise of that standard deviation along x and y (drawn from `generator`); the grounding's
-        own loss reads the sub-goal as predicted.
         Returns (loss, info)."""
         pol = self.config.policy
         actions = self._batch_tensor(batch, "action")
@@ -600,8 +549,7 @@ class TriVLA(nn.Module):
                         batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]), generator=generator
                     )
         q_s = self.policy.encode_state(self._state_input(state), eid)
-        shift = self._subgoal_shift(b, subgoal_noise, generator)
-        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state, shift)
+        q_s, memory, mask, subgoal = self._conditions(q_s, q_vl, q_vl_mask, f_static, f_wrist, state)
         flow_loss, t = self.policy.loss(
             self.normalizer.normalize_action(actions),
             q_s,
@@ -629,33 +577,28 @@ class TriVLA(nn.Module):
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         with torch.no_grad():
             q_vl, q_vl_mask = self._batch_q_vl(batch)
-        pol = self.config.policy
-        for reads, field, what in ((self.policy.grounding_reads_tcp,
-                                    "grounding_reads_tcp / grounding_anchor_wrist_camera", "the tool-centre point"),
-                                   (pol.grounding_reads_gripper, "grounding_reads_gripper", "the gripper's closure")):
-            if reads and "state" not in batch:
-                raise ValueError(f"batch is missing 'state': this grounding reads {what} (policy.{field})")
+        if self.config.policy.grounding_reads_gripper and "state" not in batch:
+            raise ValueError("batch is missing 'state': this grounding reads the gripper's closure "
+                             "(policy.grounding_reads_gripper)")
         state = self._batch_tensor(batch, "state") if "state" in batch else None
         loss = self._subgoal_loss(batch, self.subgoal_of_features(q_vl, q_vl_mask, state))
         return loss, {"grounding_loss": float(loss.detach()), "loss": float(loss.detach())}
 
     def subgoal_of_features(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None,
                             state: torch.Tensor | None) -> torch.Tensor:
-        """The instruction grounding's raw sub-goal (B, 3) or (B, 5) (see `predict_subgoal`) of precomputed Q_vl
-        (B, S, D_llm) with its mask (B, S) or None, and unnormalised robot states (B, state_dim), read when the
-        grounding reads the tool-centre point or the gripper (else may be None)."""
+        """The instruction grounding's raw sub-goal (B, 3) in tcp feature units of precomputed Q_vl (B, S, D_llm)
+        with its mask (B, S) or None, and unnormalised robot states (B, state_dim), read when the grounding reads
+        the gripper (else may be None)."""
         return self.grounding_of_features(q_vl, q_vl_mask, state)[1]
 
     def grounding_of_features(self, q_vl: torch.Tensor, q_vl_mask: torch.Tensor | None,
                               state: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """The instruction grounding's goal token (B, D_policy), which System 1's DiT reads, and its raw sub-goal
         (as `subgoal_of_features`), from the same inputs."""
-        tcp = gripper = None
-        if self.policy.grounding_reads_tcp:
-            tcp = self.tcp_features(state).to(q_vl.dtype)
+        gripper = None
         if self.config.policy.grounding_reads_gripper:
             gripper = self._gripper_for_grounding(state).to(q_vl.dtype)
-        return self.policy.ground(q_vl, q_vl_mask, tcp, gripper)
+        return self.policy.ground(q_vl, q_vl_mask, gripper)
 
     def _batch_q_vl(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A batch's Q_vl and its mask: precomputed "q_vl" (+ optional "q_vl_mask"), or System 2 run on
@@ -666,8 +609,8 @@ class TriVLA(nn.Module):
         return self.encode_vision_language_batch(batch["static_rgb"], batch["wrist_rgb"], list(batch["instruction"]))
 
     def _subgoal_loss(self, batch: Mapping[str, Any], subgoal: torch.Tensor) -> torch.Tensor:
-        """grounding_loss of predicted sub-goals (B, 3) or (B, 5) against the batch's labels ("subgoal_position",
-        and "subgoal_yaw" for a grounding with a yaw), after checking them."""
+        """grounding_loss of predicted sub-goals (B, 3) against the batch's labels ("subgoal_position"), after
+        checking them."""
         b = subgoal.shape[0]
         if "subgoal_position" not in batch:
             raise ValueError("batch is missing 'subgoal_position', the instruction grounding's labels "
@@ -680,15 +623,7 @@ class TriVLA(nn.Module):
             counts = torch.as_tensor(counts, dtype=torch.bool, device=self.device)
             if tuple(counts.shape) != (b,):
                 raise ValueError(f"batch['subgoal_in_loss'] must be ({b},); got {tuple(counts.shape)}")
-        yaw = None
-        if subgoal.shape[-1] == 5:
-            if "subgoal_yaw" not in batch:
-                raise ValueError("batch is missing 'subgoal_yaw', the grounding's yaw labels (policy.subgoal_yaw; "
-                                 "a dataset with observation.tcp_pose)")
-            yaw = self._batch_tensor(batch, "subgoal_yaw")
-            if tuple(yaw.shape) != (b, 2) or not torch.isfinite(yaw).all():
-                raise ValueError(f"batch['subgoal_yaw'] must be finite ({b}, 2); got {tuple(yaw.shape)}")
-        return grounding_loss(subgoal, target, counts, yaw)
+        return grounding_loss(subgoal, target, counts)
 
     def compute_video_loss(
         self, batch: Mapping[str, Any], *, generator: torch.Generator | None = None
@@ -732,24 +667,17 @@ class TriVLA(nn.Module):
         return list(torch.split(scores, [len(c) for c in candidates]))
 
     def compute_vlm_loss(
-        self, batch: Mapping[str, Any], *, weighting: str = "token", dense_weight: float = 0.0,
-        answer_weight: float = 1.0,
+        self, batch: Mapping[str, Any], *, dense_weight: float = 0.0,
     ) -> tuple[torch.Tensor, dict[str, float]]:
-        """System 2's next-token loss on answers to visual questions: "static_rgb"/"wrist_rgb" uint8
-        (B, H, W, 3), "instruction" list[str] (the question) and "answer" list[str]. `weighting`:
-        "token" (mean over the batch's answer tokens) or "answer" (each answer weighs the same).
-        With `dense_weight` > 0, plus that times the dense loss of System 2's block head on the same
+        """System 2's next-token loss on answers to visual questions (the mean over the batch's answer tokens):
+        "static_rgb"/"wrist_rgb" uint8 (B, H, W, 3), "instruction" list[str] (the question) and "answer"
+        list[str]. With `dense_weight` > 0, plus that times the dense loss of System 2's block head on the same
         image tokens, against "block_labels" uint8 (B, 2, H, W) (static, wrist; 0 nothing, 1 + k
-        block k). `answer_weight` weighs the next-token loss; 0 leaves it out (the LLM is not run, so
-        an LLM trimmed at its read-out layer trains too; it needs `dense_weight` > 0). Returns (loss, info)."""
+        block k). Returns (loss, info)."""
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
         if not dense_weight >= 0:
             raise ValueError(f"dense_weight must be >= 0; got {dense_weight}")
-        if not answer_weight >= 0:
-            raise ValueError(f"answer_weight must be >= 0; got {answer_weight}")
-        if not (answer_weight or dense_weight):
-            raise ValueError("answer_weight 0 leaves the dense loss alone: it needs dense_weight > 0")
         for key in ("static_rgb", "wrist_rgb", "instruction", "answer") + (("block_labels",) if dense_weight else ()):
             if key not in batch:
                 raise ValueError(f"batch is missing {key!r}")
@@ -770,13 +698,9 @@ class TriVLA(nn.Module):
             if labels.dtype != torch.uint8 or tuple(labels.shape) != (images.shape[0], 2) + tuple(images.shape[2:4]):
                 raise ValueError(f"batch['block_labels'] must be uint8 {(images.shape[0], 2) + tuple(images.shape[2:4])}; "
                                  f"got {labels.dtype} {tuple(labels.shape)}")
-        loss, dense = self.vision_language.vlm_losses(images, ids, answers, weighting=weighting, block_labels=labels,
-                                                      with_answers=bool(answer_weight))
-        info = {}
-        if loss is not None:
-            info["vlm_loss"] = float(loss.detach())
-            loss = answer_weight * loss
+        loss, dense = self.vision_language.vlm_losses(images, ids, answers, block_labels=labels)
+        info = {"vlm_loss": float(loss.detach())}
         if dense is not None:
             info["dense_loss"] = float(dense.detach())
-            loss = dense_weight * dense if loss is None else loss + dense_weight * dense
+            loss = loss + dense_weight * dense
         return loss, info

@@ -14,7 +14,7 @@ from torch import nn
 
 from trivla_drake.nn import pretrained
 from trivla_drake.nn.chat_prompt import PROMPT_AFTER_IMAGES, ChatPrompt, build_chat_prompt
-from trivla_drake.nn.config import VisionLanguageConfig, check_vlm_loss_weighting
+from trivla_drake.nn.config import VisionLanguageConfig
 from trivla_drake.nn.early_exit import run_until
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
 from trivla_drake.nn.tokenizer import TextTokenizer
@@ -77,11 +77,6 @@ class VisionLanguageModule(nn.Module):
         self.image_size = vcfg.image_size
         grid = vcfg.image_size // vcfg.patch_size
         self.num_image_tokens = grid * grid // round(1 / pixel_shuffle_ratio) ** 2
-        # Per (token position, channel) statistics over the batch in training, running ones in eval.
-        self.image_token_norm = (
-            nn.BatchNorm1d(self.num_image_tokens * llm.config.hidden_size, momentum=0.01)
-            if config.image_token_norm else None
-        )
         self.block_head = (nn.Linear(llm.config.hidden_size, config.dense_classes * config.dense_subcells**2)
                            if config.dense_classes > 0 else None)
         num_layers = len(llm.model.layers)
@@ -180,10 +175,7 @@ class VisionLanguageModule(nn.Module):
         dtype = self.projector[1].weight.dtype
         pixels = images_to_siglip_input(images.to(self.projector[1].weight.device), dtype)
         patches = self.vision_encoder(pixel_values=pixels).last_hidden_state  # (N, G*G, Cv)
-        tokens = self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
-        if self.image_token_norm is not None:
-            tokens = self.image_token_norm(tokens.flatten(1)).view_as(tokens)
-        return tokens
+        return self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
 
     def build_prompts(
         self, instruction_ids: list[list[int]], num_images: int, answers: list[str] | None = None
@@ -256,33 +248,16 @@ class VisionLanguageModule(nn.Module):
         return F.binary_cross_entropy_with_logits(self.block_head(tokens).float(), targets)
 
     def vlm_losses(
-        self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *, weighting: str = "token",
-        block_labels: torch.Tensor | None = None, with_answers: bool = True,
-    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining).
-
-        `weighting` "token": the mean over every answer token of the batch, so a long caption weighs
-        as much as many one-word answers; "answer": each answer's mean, averaged over the batch, so a
-        one-word colour or yes/no answer weighs as much as a caption (`VLM_LOSS_WEIGHTINGS`).
-
-        With `block_labels` (B, V, S, S) also the dense loss of the same image tokens
-        (`dense_block_loss`), else None. `with_answers` False skips the LLM (its loss is None): the
-        dense loss alone, which an LLM trimmed at the read-out layer can train too. Returns (LM loss, dense loss)."""
-        check_vlm_loss_weighting(weighting)
+        self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *,
+        block_labels: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining): the mean
+        over every answer token of the batch. With `block_labels` (B, V, S, S) also the dense loss of the same
+        image tokens (`dense_block_loss`), else None. Returns (LM loss, dense loss)."""
         batch, views = images.shape[:2]
         flat = self.encode_images(images.flatten(0, 1))
         dense = None if block_labels is None else self.dense_block_loss(flat, block_labels.flatten(0, 1))
-        if not with_answers:
-            return None, dense
         tokens = flat.unflatten(0, (batch, views))
         prompts = self.build_prompts(instruction_ids, views, answers)
         embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)
-        if weighting == "token":
-            return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss, dense
-        logits = self.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits[:, :-1]
-        targets = labels[:, 1:]
-        per_token = F.cross_entropy(
-            logits.float().transpose(1, 2), targets, ignore_index=IGNORE_INDEX, reduction="none"
-        )
-        counted = (targets != IGNORE_INDEX).float()
-        return ((per_token * counted).sum(1) / counted.sum(1).clamp(min=1)).mean(), dense
+        return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss, dense

@@ -7,7 +7,6 @@ import math
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams, SceneGraph
-from pydrake.math import RollPitchYaw
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ScopedName
 from pydrake.systems.framework import DiagramBuilder, LeafSystem, OutputPort
@@ -106,35 +105,3 @@ def add_rgb_camera(
     )
     builder.Connect(sensor.color_image_output_port(), hold.get_input_port())
     return hold.get_output_port(), sensor.color_image_output_port()
-
-
-def camera_calibration(config: CameraConfig, name: str) -> list[float]:
-    """A camera fixed in the world as the 12 numbers of nn/camera_cells.py: pose (x, y, z, roll, pitch,
-    yaw), intrinsics (fx, fy, cx, cy) and image size. ValueError naming the camera if it is not fixed
-    in the world (a wrist camera moves with the hand; its cells look at no fixed place)."""
-    if config.X_PB.base_frame not in (None, "world"):
-        raise ValueError(f"cameras.{name} rides on {config.X_PB.base_frame!r}: a calibration is for a camera "
-                         "fixed in the world")
-    X_WB = config.X_PB.GetDeterministicValue() @ config.X_BC.GetDeterministicValue()
-    return _calibration(X_WB, config)
-
-
-def hand_camera_calibration(plant: MultibodyPlant, config: CameraConfig, name: str,
-                            tcp_frame: str = "panda::panda_hand_tcp") -> list[float]:
-    """A camera on the hand as the 12 numbers of nn/camera_cells.py, its pose in `tcp_frame` (the
-    tool-centre point's, as nn/panda_tcp.py computes it). ValueError naming the camera if it does not
-    move rigidly with `tcp_frame` (welded to it, whatever the joints)."""
-    frame = _frame_named(plant, config.X_PB.base_frame, name)
-    tcp = _frame_named(plant, tcp_frame, name)
-    if frame.body().index() not in [body.index() for body in plant.GetBodiesWeldedTo(tcp.body())]:
-        raise ValueError(f"cameras.{name} rides on {config.X_PB.base_frame!r}, which does not move rigidly with "
-                         f"{tcp_frame!r}")
-    X_TP = plant.CalcRelativeTransform(plant.CreateDefaultContext(), tcp, frame)
-    return _calibration(X_TP @ config.X_PB.GetDeterministicValue() @ config.X_BC.GetDeterministicValue(), config)
-
-
-def _calibration(X, config: CameraConfig) -> list[float]:
-    rpy = RollPitchYaw(X.rotation()).vector()
-    cx, cy = config.principal_point()
-    return [*map(float, X.translation()), *map(float, rpy), float(config.focal_x()), float(config.focal_y()),
-            float(cx), float(cy), float(config.width), float(config.height)]

@@ -34,10 +34,6 @@ class Waypoint:
     # ... unless this much time passed since the commanded pose got there (contact legs) [s].
     timeout_s: float = 1.5
     label: str = ""
-    # A leg down around something to grasp: an expert that turns first (OraclePolicy(turn_first=True))
-    # holds its position while the hand's yaw is off the leg's; one that aligns first
-    # (OraclePolicy(align_first=True)) stops going down while the hand is sideways or turned off it.
-    turn_first: bool = False
 
 
 def moved(previous: Waypoint, position=None, *, yaw: float | None = None, gripper: float | None = None,
@@ -101,31 +97,6 @@ def retreat(scene: SceneState, gripper_closed: bool) -> list[Waypoint]:
     return plan
 
 
-# Detours (`detours`): the tcp's height above the top of the block it visits [m], its x-y jitter [m]
-# and the hand's yaw [rad].
-DETOUR_CLEARANCE = (0.03, 0.10)
-DETOUR_JITTER = 0.03
-DETOUR_YAW = (-0.8, 0.8)
-
-
-def detours(scene: SceneState, named: str | None, rng: np.random.Generator, count: int,
-            gripper: float = GRIPPER_OPEN) -> list[Waypoint]:
-    """`count` legs, each to just above a block other than `named` (any block when None), a few
-    centimetres off its centre, at a random yaw; the gripper stays at `gripper`. A demonstration that
-    visits them before its task shows the tcp near blocks the instruction does not name, so where the
-    hand is says nothing about where its next grasp will be (results/grounding_curriculum)."""
-    if count < 0:
-        raise ValueError(f"count must be >= 0, got {count}")
-    others = [c for c in scene.blocks if c != named] or list(scene.blocks)
-    plan: list[Waypoint] = []
-    for _ in range(count):
-        p = scene.block_position(others[int(rng.integers(len(others)))])
-        x, y = p[:2] + rng.uniform(-DETOUR_JITTER, DETOUR_JITTER, size=2)
-        z = p[2] + BLOCK_HALF + rng.uniform(*DETOUR_CLEARANCE)
-        plan.append(Waypoint(tcp_pose([x, y, z], float(rng.uniform(*DETOUR_YAW))), gripper, label="detour"))
-    return plan
-
-
 def grasp(scene: SceneState, color: str, lift_to: float, *, yaw: float | None = None) -> list[Waypoint]:
     """Open hand above the block, down around it, close, lift the tcp to `lift_to` [m]."""
     p = scene.block_position(color)
@@ -133,7 +104,7 @@ def grasp(scene: SceneState, color: str, lift_to: float, *, yaw: float | None = 
         yaw = grasp_yaw(scene, color)
     z = max(p[2] + 0.003, 0.022)
     above = Waypoint(tcp_pose([p[0], p[1], max(p[2] + 0.1, 0.12)], yaw), GRIPPER_OPEN, label="above block")
-    down = moved(above, [p[0], p[1], z], speed=SLOW, tolerance=0.006, label="around block", turn_first=True)
+    down = moved(above, [p[0], p[1], z], speed=SLOW, tolerance=0.006, label="around block")
     close = moved(down, gripper=GRIPPER_CLOSE, settle_s=0.5, timeout_s=0.8, label="close")
     lift = moved(close, [p[0], p[1], lift_to], speed=SLOW, tolerance=0.015, label="lift")
     return [above, down, close, lift]
@@ -164,7 +135,7 @@ def handle_grasp(scene: SceneState) -> list[Waypoint]:
     cabinet = scene.layout.cabinet
     yaw = math.atan2(cabinet[1, 0], cabinet[0, 0])  # fingers close across the bar, along the cabinet's y
     above = Waypoint(tcp_pose(h + [0.0, 0.0, 0.1], yaw), GRIPPER_OPEN, label="above handle")
-    down = moved(above, h, speed=SLOW, tolerance=0.005, label="around handle", turn_first=True)
+    down = moved(above, h, speed=SLOW, tolerance=0.005, label="around handle")
     close = moved(down, gripper=GRIPPER_CLOSE, settle_s=0.5, timeout_s=0.8, label="close on handle")
     return [above, down, close]
 

@@ -561,17 +561,15 @@ def check_seed(seed: int, flag: str = "--seed") -> int:
     return seed
 
 
-def check_run_settings(tasks: list[str], seed: int, stacked_picks: bool | float) -> None:
+def check_run_settings(tasks: list[str], seed: int) -> None:
     """What `collect` and `evaluate` both refuse, naming the flag: an unknown task, a task named twice (the same
-    seeds twice), a seed outside 0..MAX_SEED, or --stacked-picks without any task it applies to."""
+    seeds twice), or a seed outside 0..MAX_SEED."""
     for name in tasks:
         get_task(name)
     repeated = sorted(name for name in set(tasks) if tasks.count(name) > 1)
     if repeated:
         raise ValueError(f"--tasks names {repeated} more than once")
     check_seed(seed)
-    if stacked_picks and tasks and not set(tasks) & set(STACKED_PICK_TASKS):
-        raise ValueError(f"--stacked-picks applies to {', '.join(STACKED_PICK_TASKS)}; --tasks has none of them")
 
 
 def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraphrase: bool = False,

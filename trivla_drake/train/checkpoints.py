@@ -76,38 +76,18 @@ def export_checkpoint(
     *,
     weights_dtype: str = "float16",
     drop_unused_llm_layers: bool = False,
-    trained_weights: bool = False,
 ) -> Path:
     """Writes the model of checkpoint `source` (no optimizer state) to `target` atomically, its weights in
     `weights_dtype` (float16: half the size, e.g. the shipped models/trivla_cpu). With
     `drop_unused_llm_layers`, System 2's LLM keeps only the layers up to its read-out layer: the same
     Q_vl and actions, a smaller file, but no longer a start for the vlm stage. An existing `target`
-    is replaced only once the new one is complete. With `trained_weights`, a checkpoint of a run with
-    `ema_decay` gives the weights its optimizer trained instead of their moving average."""
+    is replaced only once the new one is complete."""
     from trivla_drake.nn.checkpoint import load_checkpoint
 
     model = load_checkpoint(str(source))
-    if trained_weights:
-        load_trained_weights(model, source)
     if drop_unused_llm_layers and model.vision_language is not None:
         model.vision_language.drop_layers_above_readout()
     return write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
-
-
-def load_trained_weights(model: torch.nn.Module, directory: str | os.PathLike) -> None:
-    """Puts the trained (not averaged) weights of a training checkpoint with a weight average into `model`."""
-    average = load_train_state(directory).get("weight_average")
-    if average is None:
-        raise ValueError(f"{directory} holds no weight average (it was not trained with --ema-decay): its "
-                         "model already holds the trained weights")
-    trained = average["trained"]
-    params = dict(model.named_parameters())
-    unknown = sorted(set(trained) - set(params))
-    if unknown:
-        raise ValueError(f"{directory}: the trained weights name parameters the model lacks: {unknown[:3]}")
-    with torch.no_grad():
-        for name, value in trained.items():
-            params[name].copy_(value)
 
 
 def list_checkpoints(out: str | os.PathLike) -> list[tuple[int, Path]]:

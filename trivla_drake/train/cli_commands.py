@@ -19,7 +19,6 @@ import json
 import os
 import sys
 
-from trivla_drake.nn.config import VLM_LOSS_WEIGHTINGS
 from trivla_drake.train.config import GROUNDING_PHASES, TrainConfig
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads on shared cores
@@ -29,21 +28,6 @@ def _user_errors():
     from trivla_drake.data.lerobot import NotADatasetError
 
     return (ValueError, NotADatasetError, FileNotFoundError, FloatingPointError)
-
-
-def default_camera_calibration(name: str) -> tuple[float, ...]:
-    """The default scenario's camera `name` as the 12 numbers of nn/camera_cells.py: the static camera in
-    the world (`--grounding-anchor`), the wrist camera in the tool-centre point's frame
-    (`--grounding-anchor-wrist`)."""
-    from trivla_drake.station.cameras import camera_calibration, hand_camera_calibration
-    from trivla_drake.station.scenario import load_scenario
-    from trivla_drake.station.station import make_station
-
-    scenario = load_scenario()
-    camera = scenario.cameras[name]
-    if camera.X_PB.base_frame in (None, "world"):
-        return tuple(camera_calibration(camera, name))
-    return tuple(hand_camera_calibration(make_station(scenario).GetSubsystemByName("plant"), camera, name))
 
 
 def config_from_args(args: argparse.Namespace):
@@ -68,38 +52,23 @@ def config_from_args(args: argparse.Namespace):
         resume=args.resume,
         seed=args.seed,
         workers=args.workers,
-        fraction=args.fraction,
-        gripper_event_weight=args.gripper_event_weight,
-        gripper_event_window_s=args.gripper_event_window,
         use_system2=not args.no_system2,
-        tcp_features=not args.no_tcp_features,
         use_system3=not args.no_system3,
         cache_dir=args.cache_dir,
         feature_stride=args.feature_stride,
         feature_dtype=args.feature_dtype,
-        vqa_scenes=args.vqa_scenes,
-        vlm_loss_weighting=args.vlm_loss,
-        image_token_norm=args.image_token_norm,
         vl_position_embedding=args.vl_position_embedding,
         dense_weight=args.dense_weight,
         dense_subcells=args.dense_subcells,
-        answer_weight=args.answer_weight,
         grounding_weight=args.grounding_weight,
         grounding_lr_scale=args.grounding_lr_scale,
         grounding_phase=args.grounding_phase,
         subgoal_offset=args.subgoal_offset,
-        subgoal_noise=args.subgoal_noise,
-        subgoal_yaw=args.subgoal_yaw,
         keep_grounding=args.keep_grounding,
         grounding_carry_tasks=tuple(t for t in (args.grounding_carry_tasks or "").split(",") if t),
         system2_from=args.system2_from,
         fresh_system1=args.fresh_system1,
-        keep_normalization=args.keep_normalization,
-        grounding_reads_tcp=args.grounding_reads_tcp,
         grounding_reads_gripper=args.grounding_reads_gripper,
-        grounding_anchor_camera=default_camera_calibration("static_camera") if args.grounding_anchor else (),
-        grounding_anchor_wrist_camera=(default_camera_calibration("wrist_camera") if args.grounding_anchor_wrist
-                                       else ()),
         bind_held_only=args.bind_held_only,
         clip_seconds=args.clip_seconds,
         future_stride=args.future_stride,
@@ -165,24 +134,13 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--ema-decay", type=float, default=TrainConfig.ema_decay,
                         help="checkpoints hold a moving average of the trained weights over about the last "
                              "1/(1 - D) steps (0.999: 1000), as diffusion policies are usually evaluated; the "
-                             "trained weights stay in the training state (export --trained-weights); 0: the last "
+                             "trained weights stay in the training state; 0: the last "
                              f"step's weights (default {TrainConfig.ema_decay:g})")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     parser.add_argument("--seed", type=int, default=0, help="seed of initialisation, data order and noise")
     parser.add_argument("--workers", type=int, default=0, help="DataLoader workers per process (default 0)")
-    parser.add_argument("--gripper-event-weight", type=int, default=1,
-                        help="policy: sample the frames less than --gripper-event-window seconds before a gripper "
-                             "change (the last approach to each grasp and release) this many times as often as the "
-                             "rest (default 1: uniform)")
-    parser.add_argument("--gripper-event-window", type=float, default=1.0,
-                        help="policy, with --gripper-event-weight: how long before a gripper change a frame counts "
-                             "[s] (default 1)")
-    parser.add_argument("--fraction", type=float, default=1.0,
-                        help="fraction of each task's episodes to train on (0.1: the 10%%-data experiment)")
     parser.add_argument("--no-system2", action="store_true", help="ablation: a model without System 2")
-    parser.add_argument("--no-tcp-features", action="store_true",
-                        help="System 1 reads the joint state only, not also the tool-centre-point pose computed from it")
     parser.add_argument("--no-system3", action="store_true", help="ablation: a model without System 3")
     parser.add_argument("--cache-dir", default=None,
                         help="folder for decoded clips, the VQA set and System 2/3 features "
@@ -196,13 +154,6 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--future-stride", type=int, default=None,
                         help="video: frames between clip frames (default: from --clip-seconds and the fps)")
     parser.add_argument("--keep-checkpoints", type=int, default=2, help="periodic checkpoints kept (default 2)")
-    parser.add_argument("--vqa-scenes", type=int, default=500, help="vlm: scenes rendered for the VQA set")
-    parser.add_argument("--vlm-loss", choices=VLM_LOSS_WEIGHTINGS, default="token",
-                        help="vlm: average the next-token loss over the batch's answer tokens (default; long "
-                             "captions dominate) or per answer (each question weighs the same)")
-    parser.add_argument("--image-token-norm", action="store_true",
-                        help="vlm: batch-normalise System 2's image tokens before its LLM (a fresh norm when "
-                             "--init has none; for System 2 trained from scratch)")
     parser.add_argument("--dense-weight", type=float, default=0.0,
                         help="vlm: weight of a dense loss that trains System 2's image tokens to say which blocks "
                              "their image cells show (from the renderer's label images); 0: none")
@@ -210,10 +161,6 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="vlm, with --dense-weight: split each image token's cell into N x N sub-cells "
                              "whose blocks the dense loss asks for, so the tokens say where in their cell a "
                              "block lies (default: as --init's head has them; 1, the whole cell, for a new head)")
-    parser.add_argument("--answer-weight", type=float, default=1.0,
-                        help="vlm: weight of the next-token loss on the answers; 0 trains System 2's image tokens "
-                             "by the dense loss alone (needs --dense-weight), with its LLM frozen and not run, so "
-                             "an --init exported with --drop-unused-llm-layers (e.g. models/trivla_cpu) can go on")
     parser.add_argument("--vl-position-embedding", action="store_true",
                         help="policy: give System 1 a learned embedding of System 2's token positions, so it "
                              "knows where in the image a token it reads lies (added when --init has none)")
@@ -244,26 +191,11 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy, with --init: train a fresh System 1 (drawn from --seed) on --init's Systems 2 "
                              "and 3, keeping its System 1 options (e.g. the 10%%-data arm of the tables); with "
                              "--grounding-phase follow it keeps --init's instruction grounding")
-    parser.add_argument("--keep-normalization", action="store_true",
-                        help="policy, with --init: keep --init's state and action statistics instead of fitting "
-                             "them to --data (a follow on a dataset whose action ranges are narrower)")
-    parser.add_argument("--grounding-reads-tcp", action="store_true",
-                        help="policy, with --grounding-weight: the instruction grounding also reads the tool-centre "
-                             "point's features, to place its sub-goal from the wrist view (added when --init's "
-                             "grounding reads none)")
     parser.add_argument("--grounding-reads-gripper", action="store_true",
                         help="policy, with --grounding-weight: the instruction grounding also reads how far the "
                              "gripper is closed and answers with a second read-out while a block is held, so an "
                              "instruction can name one block before the grasp and another after it (use with "
                              "--grounding-carry; added as a copy of the read-out when --init's grounding has none)")
-    parser.add_argument("--grounding-anchor", action="store_true",
-                        help="policy, with --grounding-weight: anchor the instruction grounding's sub-goal on the "
-                             "static camera's image cells, each the place on the table it looks at (the default "
-                             "scenario's calibration; added, with fresh weights, when --init's grounding has none)")
-    parser.add_argument("--grounding-anchor-wrist", action="store_true",
-                        help="with --grounding-anchor: the anchor also weighs the wrist view's cells, each the place "
-                             "its ray meets the table from the hand's pose (near a grasp the arm hides the block "
-                             "from the static camera)")
     parser.add_argument("--bind-held-only", action="store_true",
                         help="bind, with --keep-grounding --grounding-reads-gripper: train only the held-block "
                              "read-out, so the answers with no block held stay --init's exactly")
@@ -271,15 +203,6 @@ def add_train_parser(commands) -> argparse.ArgumentParser:
                         help="policy, with --grounding-weight: also give System 1's state token the grounding's "
                              "sub-goal relative to the tool-centre point (added, starting at zero, when --init "
                              "has none)")
-    parser.add_argument("--subgoal-noise", type=float, default=0.0, metavar="METRES",
-                        help="policy follow or joint run, on a System 1 with a sub-goal offset (--subgoal-offset or "
-                             "--init's): during training, move the sub-goal it reads by "
-                             "Gaussian noise of this standard deviation along x and y, so it learns to trust the "
-                             "grounding as far as it holds on unseen scenes (inference is unchanged; default 0)")
-    parser.add_argument("--subgoal-yaw", action="store_true",
-                        help="policy, with --grounding-weight: the instruction grounding also predicts the hand's yaw "
-                             "at its sub-goal (modulo a quarter turn) and System 1 reads it; bind it first (a bind "
-                             "run adds a fresh yaw head to --init's grounding), then follow")
     parser.add_argument("--threads", type=int, default=None, help="torch threads per process (default: torch's)")
     parser.add_argument("--precision", default="fp32", choices=("fp32", "bf16"), help="bf16 autocast on CUDA")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -338,8 +261,7 @@ def run_export(args: argparse.Namespace) -> int:
     from trivla_drake.train.checkpoints import export_checkpoint
 
     return _write_model_folder("export", args, lambda: export_checkpoint(
-        args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers,
-        trained_weights=args.trained_weights))
+        args.checkpoint, args.out, weights_dtype=args.dtype, drop_unused_llm_layers=args.drop_unused_llm_layers))
 
 
 def add_export_parser(commands) -> argparse.ArgumentParser:
@@ -354,9 +276,6 @@ def add_export_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--drop-unused-llm-layers", action="store_true",
                         help="keep only System 2's LLM layers up to its read-out layer (select_layer): the "
                              "same actions from a smaller file, but no longer a start for --stage vlm")
-    parser.add_argument("--trained-weights", action="store_true",
-                        help="of a run with --ema-decay: write the weights the optimizer trained, not their "
-                             "moving average (which the checkpoint's model holds)")
     parser.set_defaults(run=run_export)
     return parser
 

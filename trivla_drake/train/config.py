@@ -15,8 +15,7 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
-from trivla_drake.nn.camera_cells import ANCHOR_PLANE_HEIGHT, check_calibration, check_looks_down
-from trivla_drake.nn.config import check_vlm_loss_weighting
+from trivla_drake.nn.config import without_removed_fields
 
 STAGES = ("video", "vlm", "policy")
 GROUNDING_PHASES = ("joint", "bind", "follow")  # TrainConfig.grounding_phase
@@ -42,21 +41,25 @@ RESUMABLE_CHANGES = frozenset(
 # The `train` flags whose names are not the field's (`--` + the name with dashes); a test checks them
 # against the parser.
 FLAGS_NAMED_OTHERWISE = {
-    "gripper_event_window_s": "--gripper-event-window",
     "use_system2": "--no-system2",
     "use_system3": "--no-system3",
-    "tcp_features": "--no-tcp-features",
-    "vlm_loss_weighting": "--vlm-loss",
     "progress": "--no-progress",
     "grounding_carry_tasks": "--grounding-carry",
-    "grounding_anchor_camera": "--grounding-anchor",
-    "grounding_anchor_wrist_camera": "--grounding-anchor-wrist",
 }
 # Fields that no `train` flag sets (their defaults, or a preset's).
 FIELDS_WITHOUT_FLAG = frozenset(
     {"weight_decay", "beta1", "static_camera", "wrist_camera", "feature_batch_size", "feature_seed",
-     "vqa_questions_per_scene", "vqa_eval_questions", "vqa_seed", "log_every", "dist_timeout_minutes"}
+     "vqa_scenes", "vqa_questions_per_scene", "vqa_eval_questions", "vqa_seed", "log_every", "dist_timeout_minutes"}
 )
+# Options of experiments that left the product (their code is at git tag `research-archive`), each at the value
+# every run of the product had: a saved training config that lists one at that value loads (the field ignored);
+# one that set it otherwise is refused, naming the field.
+REMOVED_FIELDS: dict[str, Any] = {
+    "fraction": 1.0, "gripper_event_weight": 1, "gripper_event_window_s": 1.0, "tcp_features": True,
+    "vlm_loss_weighting": "token", "image_token_norm": False, "answer_weight": 1.0, "keep_normalization": False,
+    "grounding_reads_tcp": False, "subgoal_noise": 0.0, "subgoal_yaw": False, "grounding_anchor_camera": (),
+    "grounding_anchor_wrist_camera": (),
+}
 
 
 def flag_of(field_name: str) -> str | None:
@@ -125,19 +128,10 @@ class TrainConfig:
     seed: int = 0
     # DataLoader worker processes per training process (0 loads in the training process).
     workers: int = 0
-    # Fraction of the dataset's episodes used (per task, at least one each): the 10%-data experiment.
-    fraction: float = 1.0
-    # Policy stage: the frames less than `gripper_event_window_s` before a gripper change (the last
-    # approach to each grasp and release) are sampled this many times as often as the rest (1: uniform).
-    gripper_event_weight: int = 1
-    gripper_event_window_s: float = 1.0
     # Keep System 2 (vision-language tokens) in the model; False is the Table 4 ablation "1+3".
     use_system2: bool = True
     # Keep System 3 (dynamics features) in the model; False is the Table 4 ablation "1+2".
     use_system3: bool = True
-    # System 1's state MLP also reads the tool-centre-point pose computed from the joint angles
-    # (policy.tcp_features); a run starting from a checkpoint without it adds it (System 1 is retrained).
-    tcp_features: bool = True
     # Folder for data made once and reused: decoded clips, the VQA set, cached System 2/3 features.
     # Entries are named by hashes of everything they depend on, so runs can share it. None: default_cache_dir().
     cache_dir: str | None = None
@@ -165,12 +159,6 @@ class TrainConfig:
     vqa_eval_questions: int = 400
     # vlm stage: seed of the scene sampling and question choice (part of the VQA set's key).
     vqa_seed: int = 0
-    # vlm stage: how the next-token loss averages: "token" (over the batch's answer tokens, so long
-    # captions dominate) or "answer" (each answer weighs the same, one-word answers included).
-    vlm_loss_weighting: str = "token"
-    # vlm stage: give System 2 the batch norm of its image tokens (`VisionLanguageConfig.image_token_norm`)
-    # when the starting model has none (a fresh one, initialised at the run's start).
-    image_token_norm: bool = False
     # vlm stage: weight of the dense loss of System 2's block head (which blocks each image token's
     # cell shows, from the renderer's label images; `VisionLanguageConfig.dense_classes`); a run from
     # a checkpoint without the head adds one. 0: no dense loss (the shipped recipe).
@@ -179,10 +167,6 @@ class TrainConfig:
     # (`VisionLanguageConfig.dense_subcells`); a starting head with others is replaced by a fresh one.
     # None: as the --init model has them (1 for a fresh model or one without a head).
     dense_subcells: int | None = None
-    # vlm stage: weight of the next-token loss on the answers. 0 trains System 2 by the dense loss alone
-    # (needs dense_weight > 0): its LLM is not run and stays frozen, so a System 2 exported with
-    # --drop-unused-llm-layers (an LLM that ends at the read-out layer) can train its image tokens on.
-    answer_weight: float = 1.0
     # policy stage: give System 1 an embedding of Q_vl's token positions
     # (`PolicyConfig.vl_position_embedding`); a run from a checkpoint without one adds it.
     vl_position_embedding: bool = False
@@ -218,14 +202,6 @@ class TrainConfig:
     # the fresh System 1 keeps --init's instruction grounding (`TriVLA.reset_system1(keep_binding=True)`): the
     # policy learnt anew on a grounding bound elsewhere, as a pretrained VLM brings its grounding.
     fresh_system1: bool = False
-    # policy stage, with --init: keep the --init model's state and action normalisation (what its System 1
-    # learnt its outputs in) instead of fitting it to --data's meta/stats.json; for a follow on a dataset whose
-    # action ranges differ (results/kept_normalization). Off: refit, as every shipped step did.
-    keep_normalization: bool = False
-    # policy stage, with a grounding: the grounding also reads the tool-centre point's features
-    # (`PolicyConfig.grounding_reads_tcp`), so it can place the sub-goal from the wrist view; a run from a
-    # checkpoint whose grounding reads none adds them (its sub-goal head's first layer fresh).
-    grounding_reads_tcp: bool = False
     # policy stage, with a grounding: the grounding also reads how far the gripper is closed and answers
     # with a second read-out while a block is held (`PolicyConfig.grounding_reads_gripper`), so one
     # instruction can name one block before the grasp and another after it (with --grounding-carry); a bind
@@ -237,25 +213,6 @@ class TrainConfig:
     # policy stage, with a grounding: give System 1 the grounding's sub-goal relative to the tool-centre
     # point (`PolicyConfig.subgoal_offset`); a run from a checkpoint without it adds it (starting at zero).
     subgoal_offset: bool = False
-    # policy stage, joint or follow run: the sub-goal System 1's offset encoder reads during
-    # training is moved by Gaussian noise of this standard deviation [m] along x and along y (not in height),
-    # drawn afresh for every sample; inference reads the grounding's sub-goal as it is. The model needs an offset
-    # encoder (this run's subgoal_offset, or --init's). On its training frames the shipped grounding's sub-goal
-    # is a median 1.1 cm from its label (results/subgoal_trust); on unseen lift scenes it lands 2.3-2.9 cm from
-    # the named block (results/grounding_anchor), so System 1 may learn to trust it further than it holds.
-    # 0: none (the shipped recipe).
-    subgoal_noise: float = 0.0
-    # policy stage, with a grounding: the grounding also predicts the hand's yaw at its sub-goal, modulo a
-    # quarter turn, and System 1 reads it (`PolicyConfig.subgoal_yaw`). A bind run from a checkpoint
-    # without it adds a fresh yaw head; a follow run needs a grounding bound with it.
-    subgoal_yaw: bool = False
-    # policy stage, with a grounding: anchor its sub-goal on a fixed camera's image cells
-    # (`PolicyConfig.grounding_anchor_camera`, the 12 numbers of nn/camera_cells.py; `--grounding-anchor`
-    # gives the default scenario's static camera). A bind run from a checkpoint without it adds it.
-    grounding_anchor_camera: tuple[float, ...] = ()
-    # ... and on the wrist camera's cells too, placed from the hand's pose (`PolicyConfig.grounding_anchor_wrist_camera`:
-    # its calibration in the tool-centre point's frame; `--grounding-anchor-wrist`).
-    grounding_anchor_wrist_camera: tuple[float, ...] = ()
     # Checkpoints hold an exponential moving average of the trained weights with this decay (about the
     # last 1/(1 - decay) steps; train/weight_average.py); the trained weights themselves stay in the
     # training state for resuming (`export --trained-weights` writes them). 0: the last step's weights.
@@ -310,20 +267,6 @@ class TrainConfig:
                              f"and numpy seeding take); got {self.seed!r}")
         if self.lr is None or not self.lr > 0:
             raise ValueError(f"{named('lr')} must be > 0; got {self.lr}")
-        if not 0 < self.fraction <= 1:
-            raise ValueError(f"{named('fraction')} must be in (0, 1]; got {self.fraction}")
-        if isinstance(self.gripper_event_weight, bool) or not isinstance(self.gripper_event_weight, int) \
-                or self.gripper_event_weight < 1:
-            raise ValueError(f"gripper_event_weight (--gripper-event-weight) must be an integer >= 1; "
-                             f"got {self.gripper_event_weight!r}")
-        if not (isinstance(self.gripper_event_window_s, (int, float)) and math.isfinite(self.gripper_event_window_s)
-                and self.gripper_event_window_s > 0):
-            raise ValueError(f"gripper_event_window_s (--gripper-event-window) must be > 0 seconds; "
-                             f"got {self.gripper_event_window_s!r}")
-        if self.gripper_event_weight > 1 and self.stage != "policy":
-            raise ValueError("gripper_event_weight (--gripper-event-weight) applies to the policy stage only")
-        if self.gripper_event_weight == 1 and self.gripper_event_window_s != 1.0:
-            raise ValueError("gripper_event_window_s (--gripper-event-window) needs --gripper-event-weight above 1")
         if self.vqa_eval_questions < 0:
             raise ValueError(f"{named('vqa_eval_questions')} must be >= 0; got {self.vqa_eval_questions}")
         if self.workers < 0:
@@ -340,7 +283,6 @@ class TrainConfig:
             raise ValueError(f"{named('min_lr_ratio')} must be in [0, 1]; got {self.min_lr_ratio}")
         if self.feature_dtype not in ("float16", "bfloat16", "float32"):
             raise ValueError(f"{named('feature_dtype')} must be float16, bfloat16 or float32; got {self.feature_dtype!r}")
-        check_vlm_loss_weighting(self.vlm_loss_weighting)
         if self.vl_position_embedding and self.stage != "policy":
             raise ValueError("vl_position_embedding (--vl-position-embedding) is part of System 1: set it on the "
                              f"policy stage, not the {self.stage} stage")
@@ -380,9 +322,6 @@ class TrainConfig:
             raise ValueError("fresh_system1 (--fresh-system1) trains a new System 1 on the Systems 2 / 3 of a --init "
                              "model: it needs --stage policy, --init and --grounding-phase joint, or follow to keep "
                              "--init's instruction grounding (bind goes on from a System 1 that has learnt something)")
-        if self.keep_normalization and not (self.stage == "policy" and self.init):
-            raise ValueError("keep_normalization (--keep-normalization) keeps the state and action statistics of a "
-                             "--init checkpoint: it needs --stage policy and --init")
         if self.system2_from is not None:
             if not (self.stage == "policy" and self.init and self.use_system2):
                 raise ValueError("system2_from (--system2-from) replaces the System 2 of a --init model in the policy "
@@ -390,10 +329,6 @@ class TrainConfig:
             if self.grounding_phase == "follow":
                 raise ValueError("system2_from (--system2-from) needs its feature statistics fitted again, which a "
                                  "follow run does not do: bind (--grounding-phase bind) or train jointly first")
-        if self.grounding_reads_tcp and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
-            raise ValueError("grounding_reads_tcp (--grounding-reads-tcp) gives System 1's instruction grounding the "
-                             "tcp features: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
-                             "the tcp features (drop --no-tcp-features)")
         if self.grounding_reads_gripper and not (self.stage == "policy" and self.grounding_weight > 0):
             raise ValueError("grounding_reads_gripper (--grounding-reads-gripper) gives System 1's instruction "
                              "grounding the gripper's closure: it needs the policy stage and grounding_weight "
@@ -402,34 +337,9 @@ class TrainConfig:
                                         and self.grounding_reads_gripper):
             raise ValueError("bind_held_only (--bind-held-only) trains only the grounding's held-block read-out: it "
                              "needs --grounding-phase bind, --keep-grounding and --grounding-reads-gripper")
-        if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
+        if self.subgoal_offset and not (self.stage == "policy" and self.grounding_weight > 0):
             raise ValueError("subgoal_offset (--subgoal-offset) reads System 1's instruction grounding from the tcp "
-                             "position: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and "
-                             "the tcp features (drop --no-tcp-features)")
-        if not (math.isfinite(self.subgoal_noise) and 0 <= self.subgoal_noise <= 0.2):
-            raise ValueError(f"subgoal_noise (--subgoal-noise) is a standard deviation in metres in [0, 0.2]; "
-                             f"got {self.subgoal_noise}")
-        if self.subgoal_noise and not (self.stage == "policy" and self.grounding_weight > 0
-                                       and self.grounding_phase != "bind"):
-            raise ValueError("subgoal_noise (--subgoal-noise) moves the sub-goal System 1's offset encoder reads in "
-                             "flow matching: it needs the policy stage, grounding_weight (--grounding-weight) > 0 "
-                             "and a joint or follow run (a bind run has no flow loss)")
-        if self.subgoal_yaw and not (self.stage == "policy" and self.grounding_weight > 0 and self.tcp_features):
-            raise ValueError("subgoal_yaw (--subgoal-yaw) has System 1's instruction grounding predict the grasp's "
-                             "yaw: it needs the policy stage, grounding_weight (--grounding-weight) > 0 and the tcp "
-                             "features (drop --no-tcp-features)")
-        if self.grounding_anchor_camera:
-            if not (self.stage == "policy" and self.grounding_weight > 0):
-                raise ValueError("grounding_anchor_camera (--grounding-anchor) anchors System 1's instruction "
-                                 "grounding on a camera's image cells: it needs the policy stage and grounding_weight "
-                                 "(--grounding-weight) > 0")
-            check_looks_down(self.grounding_anchor_camera, ANCHOR_PLANE_HEIGHT, "grounding_anchor_camera")
-        if self.grounding_anchor_wrist_camera:
-            if not (self.grounding_anchor_camera and self.tcp_features):
-                raise ValueError("grounding_anchor_wrist_camera (--grounding-anchor-wrist) adds the wrist view's cells "
-                                 "to the grounding's anchor: it needs --grounding-anchor and the tcp features (drop "
-                                 "--no-tcp-features)")
-            check_calibration(self.grounding_anchor_wrist_camera, "grounding_anchor_wrist_camera")
+                             "position: it needs the policy stage and grounding_weight (--grounding-weight) > 0")
         if not self.dense_weight >= 0:
             raise ValueError(f"{named('dense_weight')} must be >= 0; got {self.dense_weight}")
         if self.dense_subcells is not None and self.dense_subcells < 1:
@@ -437,20 +347,9 @@ class TrainConfig:
         if self.dense_subcells is not None and not self.dense_weight:
             raise ValueError("dense_subcells (--dense-subcells) shapes the dense loss's targets: it needs "
                              "dense_weight (--dense-weight) > 0")
-        if not (math.isfinite(self.answer_weight) and self.answer_weight >= 0):
-            raise ValueError(f"answer_weight (--answer-weight) must be a finite number >= 0; got {self.answer_weight}")
-        if self.answer_weight != 1.0 and self.stage != "vlm":
-            raise ValueError("answer_weight (--answer-weight) weighs the vlm stage's next-token loss; "
-                             f"not the {self.stage} stage")
-        if self.answer_weight == 0 and not self.dense_weight:
-            raise ValueError("answer_weight (--answer-weight) 0 trains System 2 by the dense loss alone: it needs "
-                             "dense_weight (--dense-weight) > 0")
         if self.dense_weight and self.stage != "vlm":
             raise ValueError("dense_weight (--dense-weight) weighs a loss of the vlm stage, which trains System 2; "
                              f"not the {self.stage} stage")
-        if self.image_token_norm and self.stage != "vlm":
-            raise ValueError("image_token_norm (--image-token-norm) is set by the vlm stage, which trains System 2; "
-                             f"the {self.stage} stage keeps its --init checkpoint's System 2")
         if self.precision not in ("fp32", "bf16"):
             raise ValueError(f"{named('precision')} must be fp32 or bf16; got {self.precision!r}")
         if self.future_stride is not None and self.future_stride < 1:
@@ -469,9 +368,6 @@ class TrainConfig:
         self.grounding_carry_tasks = tuple(self.grounding_carry_tasks)
         self.extra_data = tuple(self.extra_data or ())
         # (Anything else is left for validate() to refuse, naming the field.)
-        for name in ("grounding_anchor_camera", "grounding_anchor_wrist_camera"):
-            if isinstance(getattr(self, name), list):
-                setattr(self, name, tuple(getattr(self, name)))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -479,7 +375,8 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
-        """Inverse of `to_dict`; unknown fields raise ValueError."""
+        """Inverse of `to_dict`; unknown fields raise ValueError (REMOVED_FIELDS at their value are ignored)."""
+        data = without_removed_fields(data, REMOVED_FIELDS, "training config")
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - names
         if unknown:

@@ -20,7 +20,13 @@ from typing import Any
 import numpy as np
 import torch.utils.data
 
-from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, LeRobotReader, aggregate_stats, episode_stats
+from trivla_drake.data.lerobot import (
+    EPISODE_COLUMN_DEFAULTS,
+    REMOVED_EPISODE_COLUMNS,
+    LeRobotReader,
+    aggregate_stats,
+    episode_stats,
+)
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
 
@@ -30,6 +36,9 @@ _LOCATING_PREFIXES = ("data/", "videos/", "meta/", "stats/episode_index/", "stat
 # The frame columns that say where an episode is stored (its index, its frames' indices in the folder, its task's
 # index in meta/tasks), not what it holds.
 _LOCATING_COLUMNS = ("episode_index", "index", "task_index")
+# Episode columns left out of the key at these values: rows written before a column existed, or after it was removed,
+# lack it.
+_UNSET_COLUMNS = {**EPISODE_COLUMN_DEFAULTS, **REMOVED_EPISODE_COLUMNS}
 
 
 def episode_row_key(reader: LeRobotReader, episode: int) -> str:
@@ -38,7 +47,7 @@ def episode_row_key(reader: LeRobotReader, episode: int) -> str:
     written into two folders."""
     row = {k: v for k, v in reader.episodes[episode].items()
            if k not in _LOCATING_KEYS and not k.startswith(_LOCATING_PREFIXES)
-           and not (k in EPISODE_COLUMN_DEFAULTS and v == EPISODE_COLUMN_DEFAULTS[k])}  # as written before they were
+           and not (k in _UNSET_COLUMNS and v == _UNSET_COLUMNS[k])}  # as written before they were, or after removal
     return hashlib.sha256(json.dumps(row, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -141,14 +150,10 @@ def union_normalization(readers: list[LeRobotReader], config: TriVLAConfig) -> N
 
 class PolicyDatasetUnion(torch.utils.data.ConcatDataset):
     """The samples of `parts` (PolicyFeatureDataset, one per folder) one after another (torch's ConcatDataset),
-    with what the trainer reads of a part: `shards`, keyed (part, episode), and `gripper_event_repeats`."""
+    with what the trainer reads of a part: `shards`, keyed (part, episode)."""
 
     def __init__(self, parts: list[Any]) -> None:
         super().__init__(parts)
         self.shards: dict[tuple[int, int], Path] = {
             (i, episode): path for i, part in enumerate(parts) for episode, path in part.shards.items()
         }
-
-    def gripper_event_repeats(self, window: int, weight: int) -> np.ndarray:
-        """Each part's `gripper_event_repeats`, in the union's sample order."""
-        return np.concatenate([p.gripper_event_repeats(window, weight) for p in self.datasets])

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotReader
+from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotReader, with_removed_columns
 from trivla_drake.data.samples import TrainingSamples
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
@@ -37,8 +37,9 @@ ACTION_KEY = "action"
 
 def episode_fingerprint(reader: LeRobotReader, episode: int) -> str:
     """A hash of an episode's metadata row (length, task, file indices, per-episode statistics of every
-    feature and camera): changes whenever the episode's content does, not when the folder moves."""
-    row = reader.episodes[episode]
+    feature and camera): changes whenever the episode's content does, not when the folder moves. A row written
+    without the columns of removed collection experiments hashes as it was written with them (`with_removed_columns`)."""
+    row = with_removed_columns(reader.episodes[episode])
     payload = json.dumps(row, sort_keys=True, default=str).encode()
     cameras = json.dumps({k: reader.features[k].get("shape") for k in reader.camera_keys}, sort_keys=True).encode()
     return hashlib.sha256(payload + cameras).hexdigest()[:16]
@@ -55,23 +56,6 @@ def episode_task(reader: LeRobotReader, episode: int) -> str:
     """The task an episode demonstrates: the suite task name where the dataset records it (one task has
     many instruction phrasings), else LeRobot's task, the instruction."""
     return str(reader.episodes[episode].get(EPISODE_TASK_KEY) or reader.task_of(episode))
-
-
-def select_episodes(reader: LeRobotReader, fraction: float, seed: int) -> list[int]:
-    """Episode indices used for training: all for fraction 1, else round(fraction x n) of each task's
-    n episodes (at least one), chosen with `seed`. Sorted. Tasks are `episode_task`'s."""
-    if fraction >= 1.0:
-        return list(range(reader.num_episodes))
-    by_task: dict[str, list[int]] = {}
-    for i in range(reader.num_episodes):
-        by_task.setdefault(episode_task(reader, i), []).append(i)
-    rng = np.random.default_rng(seed)
-    chosen: list[int] = []
-    for task in sorted(by_task):
-        episodes = by_task[task]
-        k = max(1, int(round(fraction * len(episodes))))
-        chosen.extend(int(e) for e in rng.choice(episodes, size=k, replace=False))
-    return sorted(chosen)
 
 
 def _feature_names(reader: LeRobotReader, key: str) -> tuple[int, list[str] | None]:
@@ -327,18 +311,6 @@ class PolicyFeatureDataset:
     def __len__(self) -> int:
         return len(self.index)
 
-    def gripper_event_repeats(self, window: int, weight: int) -> np.ndarray:
-        """int (N,): `weight` for the samples less than `window` frames before a gripper change of
-        their episode (the last approach to a grasp or a release), 1 for the rest."""
-        from trivla_drake.data.subgoals import before_gripper_event_frames
-
-        repeats = np.ones(len(self.index), dtype=np.int64)
-        for episode in np.unique(self.index[:, 0]):
-            near = before_gripper_event_frames(self.samples.gripper_commands(int(episode)), window)
-            rows = np.flatnonzero(self.index[:, 0] == episode)
-            repeats[rows[near[self.index[rows, 1]]]] = weight
-        return repeats
-
     def __getitem__(self, i: int) -> dict[str, Any]:
         episode, t, row = (int(v) for v in self.index[i])
         sample = self.samples[int(self._starts[episode]) + t]
@@ -350,7 +322,6 @@ class PolicyFeatureDataset:
         }
         if "subgoal_position" in sample:
             item["subgoal_position"] = torch.from_numpy(np.asarray(sample["subgoal_position"], dtype=np.float32))
-            item["subgoal_yaw"] = torch.from_numpy(np.asarray(sample["subgoal_yaw"], dtype=np.float32))
             item["subgoal_in_loss"] = torch.tensor(bool(sample["subgoal_in_loss"]))
         if self.use_system2 or self.use_system3:
             handle = self._handles.get(self.shards[episode])
@@ -384,7 +355,7 @@ def collate_policy(items: list[dict[str, Any]]) -> dict[str, Any]:
             q_vl[b, :n] = it["q_vl"].float()
             mask[b, :n] = True
         batch["q_vl"], batch["q_vl_mask"] = q_vl, mask
-    for key in ("dynamics_static", "dynamics_wrist", "subgoal_position", "subgoal_yaw"):
+    for key in ("dynamics_static", "dynamics_wrist", "subgoal_position"):
         if key in items[0]:
             batch[key] = torch.stack([it[key] for it in items]).float()
     if "subgoal_in_loss" in items[0]:

@@ -1,4 +1,4 @@
-"""Re-fitting the instruction grounding's read-out on rendered scenes (results/grounding_scenes).
+"""Re-fitting the instruction grounding's read-out on rendered scenes (the job: train/refit_job.py).
 
 The grounding (nn/instruction_grounding.py) reads Q_vl through the Q_vl path that System 1's DiT also
 reads (vl_norm, vl_proj, vl_position), and gives System 1 its sub-goal. `refit_readout` trains only the
@@ -24,8 +24,7 @@ GROUNDING_CARRY_TASKS = ("stack_block", "place_in_bowl", "unstack_block", "rotat
 @dataclass
 class GroundingSamples:
     """Precomputed grounding inputs and labels: Q_vl float16 (N, S, D) right-padded with its mask (N, S),
-    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), each sample's task, and which
-    samples pick the top block of a stack (N,) bool (None: none does)."""
+    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), and each sample's task."""
 
     q_vl: torch.Tensor
     q_vl_mask: torch.Tensor
@@ -33,23 +32,18 @@ class GroundingSamples:
     subgoal_position: torch.Tensor
     subgoal_yaw: torch.Tensor
     tasks: list[str]
-    stacked: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.tasks)
 
-    def stacked_rows(self) -> torch.Tensor:
-        """Which samples pick the top block of a stack (N,) bool."""
-        return torch.zeros(len(self), dtype=torch.bool) if self.stacked is None else self.stacked
-
     def batch(self, rows: torch.Tensor, length: int) -> dict[str, torch.Tensor]:
-        """`compute_grounding_loss`'s batch of `rows`, Q_vl padded to `length` tokens, with "stacked" (B,) bool."""
+        """`compute_grounding_loss`'s batch of `rows`, Q_vl padded to `length` tokens."""
         pad = length - self.q_vl.shape[1]
         return {
             "q_vl": torch.nn.functional.pad(self.q_vl[rows].float(), (0, 0, 0, pad)),
             "q_vl_mask": torch.nn.functional.pad(self.q_vl_mask[rows], (0, pad)),
             "state": self.state[rows], "subgoal_position": self.subgoal_position[rows],
-            "subgoal_yaw": self.subgoal_yaw[rows], "stacked": self.stacked_rows()[rows],
+            "subgoal_yaw": self.subgoal_yaw[rows],
         }
 
 
@@ -90,7 +84,7 @@ def scene_samples(model, scenes, *, batch_size: int = 32, progress: bool = True)
     q_vl, mask = _padded(sequences)
     return GroundingSamples(q_vl, mask, torch.from_numpy(scenes.state.copy()),
                             torch.from_numpy(scenes.subgoal_position.copy()), torch.from_numpy(scenes.subgoal_yaw.copy()),
-                            list(scenes.tasks), torch.from_numpy(scenes.stacked_pick.copy()))
+                            list(scenes.tasks))
 
 
 def dataset_samples(model, reader, *, stride: int, static_camera: str, wrist_camera: str,
@@ -155,11 +149,6 @@ def raw_subgoals(model, samples: GroundingSamples, *, batch_size: int = 128) -> 
     return grounding_outputs(model, samples, batch_size=batch_size)[1]
 
 
-def goal_drift(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
-    """How far each sample's goal token moved (N,): |after - before| / |before|."""
-    return (after - before).norm(dim=1) / before.norm(dim=1).clamp(min=1e-6)
-
-
 def offsets_from_raw(raw: torch.Tensor, samples: GroundingSamples) -> np.ndarray:
     """Raw sub-goals (N, 3) or (N, 5) of `samples` (`grounding_outputs`) minus each sample's label [m], (N, 3)."""
     return (denormalize_position(raw[:, :3]) - samples.subgoal_position).numpy()
@@ -175,32 +164,11 @@ def subgoal_errors(model, samples: GroundingSamples, *, batch_size: int = 128) -
     return np.linalg.norm(subgoal_offsets(model, samples, batch_size=batch_size)[:, :2], axis=1)
 
 
-def _scene_rows(scenes: GroundingSamples, count: int, stacked_share: float | None,
-                generator: torch.Generator) -> torch.Tensor:
-    """`count` scene rows drawn with replacement: uniformly, or `stacked_share` of them from the stacked picks."""
-    if stacked_share is None:
-        return torch.randint(len(scenes), (count,), generator=generator)
-    stacked = scenes.stacked_rows()
-    pools = [torch.nonzero(stacked).flatten(), torch.nonzero(~stacked).flatten()]
-    from_stacked = int(round(count * stacked_share))
-    return torch.cat([pool[torch.randint(len(pool), (n,), generator=generator)]
-                      for pool, n in zip(pools, (from_stacked, count - from_stacked))])
-
-
 def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, steps: int, lr: float,
                   scene_share: float = 0.5, batch_size: int = 64, seed: int = 0, log_every: int = 100,
-                  stacked_share: float | None = None, hold_weight: float = 0.0, goal_hold_weight: float = 0.0,
                   progress: bool = True) -> list[tuple[int, float]]:
     """Adam on the grounding's read-out alone (`readout_parameters`), each batch `scene_share` rendered
-    scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps.
-
-    `stacked_share`: that fraction of each batch's scenes drawn from the scenes that pick the top block of a
-    stack (None: the scenes drawn uniformly). `hold_weight` > 0: every sample that picks no stacked block
-    (table scenes and dataset frames) is also pulled, with that weight, toward the sub-goal the read-out gave
-    it before the re-fit (the grounding loss between the two), so that teaching the stacked picks moves the
-    other answers as little as it can. `goal_hold_weight` > 0: likewise for the goal token System 1's DiT reads
-    (the grounding's read goes into it besides the sub-goal; System 1 was trained on the token as it was), its
-    squared change relative to the tokens' mean square before. The curve is of the whole loss."""
+    scenes and the rest dataset frames, drawn with replacement. Returns the loss EMA every `log_every` steps."""
     from tqdm import tqdm
 
     from trivla_drake.nn.instruction_grounding import grounding_loss
@@ -209,21 +177,6 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
         raise ValueError(f"steps must be >= 1, lr > 0 and batch_size >= 2; got {steps}, {lr}, {batch_size}")
     if not 0.0 < scene_share < 1.0:
         raise ValueError(f"scene_share must be in (0, 1); got {scene_share}")
-    for name, weight in (("hold_weight", hold_weight), ("goal_hold_weight", goal_hold_weight)):
-        if not weight >= 0.0:
-            raise ValueError(f"{name} must be >= 0; got {weight}")
-    if stacked_share is not None:
-        if not 0.0 < stacked_share < 1.0:
-            raise ValueError(f"stacked_share must be in (0, 1); got {stacked_share}")
-        count = int(scenes.stacked_rows().sum())
-        if count in (0, len(scenes)):
-            raise ValueError(f"stacked_share draws from the scenes that pick a stacked block and from the others; "
-                             f"{count} of the {len(scenes)} scenes do (render them with stacked_picks)")
-    held = {}
-    if hold_weight > 0 or goal_hold_weight > 0:  # the goal tokens and raw sub-goals before the re-fit
-        held = {"scenes": grounding_outputs(model, scenes), "frames": grounding_outputs(model, frames)}
-        # The tokens' mean square before (a goal projection still at its zero start gives 0: nothing to hold).
-        goal_scale = max(float(torch.cat([held["scenes"][0], held["frames"][0]]).square().sum(1).mean()), 1e-12)
     trained = readout_parameters(model)
     for name, p in model.named_parameters():
         p.requires_grad_(False)
@@ -238,21 +191,12 @@ def refit_readout(model, scenes: GroundingSamples, frames: GroundingSamples, *, 
     bar = tqdm(range(steps), desc="re-fitting the grounding", unit="step", disable=not progress)
     for step in bar:
         model.policy.grounding.train()
-        rows = {"scenes": _scene_rows(scenes, from_scenes, stacked_share, generator),
-                "frames": torch.randint(len(frames), (batch_size - from_scenes,), generator=generator)}
-        parts = [scenes.batch(rows["scenes"], length), frames.batch(rows["frames"], length)]
+        scene_rows = torch.randint(len(scenes), (from_scenes,), generator=generator)
+        frame_rows = torch.randint(len(frames), (batch_size - from_scenes,), generator=generator)
+        parts = [scenes.batch(scene_rows, length), frames.batch(frame_rows, length)]
         batch = {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
-        goal, now = model.grounding_of_features(batch["q_vl"], batch["q_vl_mask"], batch["state"])
-        loss = grounding_loss(now, batch["subgoal_position"], None, batch["subgoal_yaw"] if now.shape[1] == 5 else None)
-        if held:
-            kept = ~batch["stacked"]
-            goal_before, before = (torch.cat([held[name][k][r] for name, r in rows.items()]) for k in (0, 1))
-            yaw = before[:, 3:] if before.shape[1] == 5 else None
-            if hold_weight > 0:
-                loss = loss + hold_weight * grounding_loss(now, denormalize_position(before[:, :3]), kept, yaw)
-            if goal_hold_weight > 0:
-                moved = (goal - goal_before).square().sum(1) / goal_scale
-                loss = loss + goal_hold_weight * (moved * kept).sum() / kept.sum().clamp(min=1)
+        _, now = model.grounding_of_features(batch["q_vl"], batch["q_vl_mask"], batch["state"])
+        loss = grounding_loss(now, batch["subgoal_position"], None)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -276,7 +220,7 @@ def save_samples(samples: GroundingSamples, path) -> None:
     tmp = path.with_name(path.name + ".partial")
     torch.save({"format": 1, "q_vl": samples.q_vl, "q_vl_mask": samples.q_vl_mask, "state": samples.state,
                 "subgoal_position": samples.subgoal_position, "subgoal_yaw": samples.subgoal_yaw,
-                "tasks": list(samples.tasks), "stacked": samples.stacked_rows()}, tmp)
+                "tasks": list(samples.tasks)}, tmp)
     os.replace(tmp, path)
 
 
@@ -290,4 +234,4 @@ def load_samples(path) -> GroundingSamples:
     if not isinstance(saved, dict) or saved.get("format") != 1:
         raise ValueError(f"{path} holds no saved grounding samples of format 1; delete it and it is computed again")
     return GroundingSamples(saved["q_vl"], saved["q_vl_mask"], saved["state"], saved["subgoal_position"],
-                            saved["subgoal_yaw"], list(saved["tasks"]), saved["stacked"])
+                            saved["subgoal_yaw"], list(saved["tasks"]))

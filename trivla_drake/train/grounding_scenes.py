@@ -15,23 +15,10 @@ below the grasp). The label is the plan's closing tool-centre point, CLOSE_TRACK
 recorded demonstrations close there (the tracked tcp lags its command). The state is the arm's joint
 angles, the fingers open, no velocity (the default 18-D Panda state).
 
-Chain starts (`chain_starts`, a fraction of the scenes; 0 by default): a chain's later tasks start where
-the tasks before them left the scene and the hand. Such a scene first has one or two prelude tasks
-(`tasks.chains.prelude_task`) applied without simulation (`after_prelude`: the drawer moved, the lamp
-switched, a block set in the bowl, on another or back on the table, pushed or turned, approximately as
-the oracle leaves it), and the arm starts at the last prelude's final pose; the task's instance must
-still be possible there. Along the approach, the path then runs from that pose.
-
-Stacked picks (`stacked_picks`, a fraction of the lift, place in bowl and stack scenes; 0 by default): the scene
-starts with a stack and the block to pick up is its top one (`sample_task_instance(stacked_pick=True)`), as a
-chain may ask and the single-task scenes never do. Without them the shipped grounding puts such a block's
-sub-goal about 4 cm too low and 5 cm off in x-y (results/stacked_subgoal/).
-
 The set is written once to a folder (atomically: a temporary folder renamed into place):
     meta.json       settings and counts
     static.npy      uint8 (scenes, S, S, 3)       wrist.npy   uint8 (scenes, S, S, 3)
-    scenes.parquet  task, instruction, state (18), subgoal_position (3) [m], subgoal_yaw (2), along_approach,
-                    chain_start, stacked_pick (in sets with stacked picks)
+    scenes.parquet  task, instruction, state (18), subgoal_position (3) [m], subgoal_yaw (2), along_approach
 """
 
 from __future__ import annotations
@@ -58,22 +45,12 @@ IK_TOLERANCE = 0.002  # [m]: a scene whose arm pose misses its approach point by
 FINGER_OPEN = 0.04  # each finger's position with the gripper open [m]
 
 
-def grounding_scene_settings(*, scenes: int, seed: int, image_size: int, chain_starts: float = 0.0,
-                             stacked_picks: float = 0.0) -> dict[str, Any]:
-    """What a set depends on (its folder's key). `chain_starts` and `stacked_picks` enter only when above 0, so
-    that the sets made before they existed keep their keys."""
+def grounding_scene_settings(*, scenes: int, seed: int, image_size: int) -> dict[str, Any]:
+    """What a set depends on (its folder's key)."""
     if scenes < 1:
         raise ValueError(f"scenes must be >= 1; got {scenes}")
-    for name, value in (("chain_starts", chain_starts), ("stacked_picks", stacked_picks)):
-        if not 0.0 <= value <= 1.0:
-            raise ValueError(f"{name} must be a fraction in [0, 1]; got {value}")
-    settings = {"format": GROUNDING_SCENES_FORMAT, "scenes": int(scenes), "seed": int(seed),
-                "image_size": int(image_size), "tasks": list(GROUNDING_SCENE_TASKS)}
-    if chain_starts > 0:
-        settings["chain_starts"] = float(chain_starts)
-    if stacked_picks > 0:
-        settings["stacked_picks"] = float(stacked_picks)
-    return settings
+    return {"format": GROUNDING_SCENES_FORMAT, "scenes": int(scenes), "seed": int(seed),
+            "image_size": int(image_size), "tasks": list(GROUNDING_SCENE_TASKS)}
 
 
 def grounding_scene_key(settings: dict[str, Any]) -> str:
@@ -108,108 +85,26 @@ def point_on_path(poses: list[np.ndarray], fraction: float) -> np.ndarray:
     return out
 
 
-# Where a pushed block ends, behind the pushing fingers' end point [m] (half a block and a finger).
-PUSH_CONTACT_OFFSET = 0.035
-
-
-def after_prelude(spec, instance, plan, layout):
-    """`spec` as the oracle leaves it after the prelude task `instance` (its `plan` in `spec`), without
-    simulation: the drawer at the plan's target, the lamp switched, a carried block at its release (in the
-    bowl, on its base or on the table), a pushed block past the fingers' end, a turned block turned.
-    The arm is not moved (the caller places it at the plan's last pose)."""
-    from dataclasses import replace
-
-    from trivla_drake.action import GRIPPER_OPEN
-    from trivla_drake.tasks.scene import BLOCK_HALF, BLOCK_SIZE, BlockPlacement, hand_yaw
-    from trivla_drake.tasks.suite import BOWL_FLOOR, ORACLE_ROTATION, TASKS
-
-    name, params = instance.task, instance.params
-    blocks = dict(spec.blocks)
-    if name == "open_drawer":
-        return replace(spec, drawer_opening=0.13)
-    if name == "close_drawer":
-        return replace(spec, drawer_opening=0.0)
-    if name in ("turn_on_light", "turn_off_light"):
-        return replace(spec, lamp_on=name == "turn_on_light")
-    if name in ("push_block_left", "push_block_right"):
-        color, d = params[0], np.asarray(TASKS[name].direction[:2], dtype=float)
-        end = plan[-1].pose[:2, 3] + PUSH_CONTACT_OFFSET * d / np.linalg.norm(d)
-        old = blocks[color]
-        blocks[color] = BlockPlacement((float(end[0]), float(end[1]), old.position[2]), old.yaw)
-    elif name in ("rotate_block_left", "rotate_block_right"):
-        old = blocks[params[0]]
-        blocks[params[0]] = BlockPlacement(old.position, old.yaw + TASKS[name].sign * ORACLE_ROTATION)
-    elif name in ("place_in_bowl", "stack_block", "unstack_block"):
-        release = [wp for wp in plan if wp.gripper == GRIPPER_OPEN][-1].pose
-        if name == "place_in_bowl":
-            z = float(layout.bowl[2, 3]) + BOWL_FLOOR + BLOCK_HALF + 0.0005
-        elif name == "stack_block":
-            z = float(spec.blocks[params[1]].position[2]) + BLOCK_SIZE + 0.0005
-        else:
-            z = BLOCK_HALF
-        blocks[params[0]] = BlockPlacement((float(release[0, 3]), float(release[1, 3]), z), hand_yaw(release))
-    else:
-        raise ValueError(f"no prelude effect is known for task {name!r}")
-    return replace(spec, blocks=blocks)
-
-
-def _chain_start(task, instance, spec, layout, kinematics, rng):
-    """(spec after one or two preludes with the arm at the last one's final pose, its tcp pose), or None
-    when no prelude is possible, the arm cannot reach that pose or `instance` is impossible after it."""
-    from trivla_drake.robot.panda_ik import solve_ik
-    from trivla_drake.tasks.chains import prelude_task
-    from trivla_drake.tasks.scene import HOME_ARM_Q, scene_from_spec, with_arm
-    from trivla_drake.tasks.suite import get_task
-
-    end = None
-    for _ in range(int(rng.integers(1, 3))):
-        prelude = prelude_task(scene_from_spec(spec, layout), rng, {task.name})
-        if prelude is None:
-            break
-        plan = get_task(prelude.task).plan(prelude.params, scene_from_spec(spec, layout))
-        spec, end = after_prelude(spec, prelude, plan, layout), plan[-1].pose
-    if end is None:
-        return None
-    arm_q, missed, _ = solve_ik(kinematics, end, np.asarray(HOME_ARM_Q, dtype=float))
-    spec = with_arm(spec, arm_q)
-    if missed > IK_TOLERANCE or instance.params not in task.candidates(scene_from_spec(spec, layout)):
-        return None
-    return spec, end
-
-
-def sample_grounding_scene(index: int, seed: int, layout, kinematics, chain_starts: float = 0.0,
-                           stacked_picks: float = 0.0) -> dict[str, Any]:
+def sample_grounding_scene(index: int, seed: int, layout, kinematics) -> dict[str, Any]:
     """Scene `index` of a set: {"spec" (SceneSpec, the arm placed), "task", "instruction", "state" (18,),
-    "subgoal_position" (3,) [m], "subgoal_yaw" (2,), "along_approach", "chain_start", "stacked_pick"}
-    (module doc). A scene is a stacked pick or a chain start, never both."""
+    "subgoal_position" (3,) [m], "subgoal_yaw" (2,), "along_approach"} (module doc)."""
     from trivla_drake.action import GRIPPER_CLOSE
     from trivla_drake.robot.panda_ik import solve_ik
     from trivla_drake.tasks.scene import scene_from_spec, with_arm
-    from trivla_drake.tasks.suite import STACKED_PICK_TASKS, get_task, sample_task_instance
+    from trivla_drake.tasks.suite import get_task, sample_task_instance
 
     task = get_task(GROUNDING_SCENE_TASKS[(index // 2) % len(GROUNDING_SCENE_TASKS)])
     along = index % 2 == 1
     rng = np.random.default_rng([int(seed), int(index)])
-    # Drawn only for sets with chain starts, so that the sets without them keep their scenes.
-    chain = chain_starts > 0 and bool(rng.random() < chain_starts)
-    # Drawn from a generator of its own, so that the sets without stacked picks keep their scenes.
-    stacked = (stacked_picks > 0 and not chain and task.name in STACKED_PICK_TASKS
-               and bool(np.random.default_rng([int(seed), int(index), 1]).random() < stacked_picks))
     for _ in range(20):
-        spec, instance = sample_task_instance(task, rng, layout, stacked_pick=stacked)
-        start = None
-        if chain:
-            start = _chain_start(task, instance, spec, layout, kinematics, rng)
-            if start is None:
-                continue
-            spec = start[0]
+        spec, instance = sample_task_instance(task, rng, layout)
         plan = task.plan(instance.params, scene_from_spec(spec, layout))
         close = next((i for i, wp in enumerate(plan) if wp.gripper == GRIPPER_CLOSE), None)
         if close is None:
             raise RuntimeError(f"task {task.name}'s plan never closes the gripper: it cannot label grounding scenes")
         arm_q = np.asarray(spec.arm_q, dtype=float)
         if along:
-            path = [kinematics.ee_pose(arm_q) if start is None else start[1]] + [wp.pose for wp in plan[: close + 1]]
+            path = [kinematics.ee_pose(arm_q)] + [wp.pose for wp in plan[: close + 1]]
             target = point_on_path(path, float(rng.uniform()))
             target[:3, 3] += rng.normal(0.0, APPROACH_SPREAD, 3)
             target[2, 3] = max(target[2, 3], plan[close].pose[2, 3])
@@ -221,9 +116,9 @@ def sample_grounding_scene(index: int, seed: int, layout, kinematics, chain_star
             "spec": spec, "task": task.name, "instruction": instance.instruction, "along_approach": along,
             "state": np.concatenate([arm_q, [FINGER_OPEN, FINGER_OPEN], np.zeros(9)]).astype(np.float32),
             "subgoal_position": (plan[close].pose[:3, 3] + CLOSE_TRACKING_LAG).astype(np.float32),
-            "subgoal_yaw": quarter_turn_yaw(plan[close].pose), "chain_start": chain, "stacked_pick": stacked,
+            "subgoal_yaw": quarter_turn_yaw(plan[close].pose),
         }
-    raise RuntimeError(f"grounding scene {index}: no reachable {'chain start or ' if chain else ''}approach point in 20 draws")
+    raise RuntimeError(f"grounding scene {index}: no reachable approach point in 20 draws")
 
 
 def generate_grounding_scenes(folder: str | os.PathLike, settings: dict[str, Any], *, progress: bool = True) -> Path:
@@ -241,14 +136,10 @@ def generate_grounding_scenes(folder: str | os.PathLike, settings: dict[str, Any
         layout = renderer.layout()
         static = np.lib.format.open_memmap(tmp / "static.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
         wrist = np.lib.format.open_memmap(tmp / "wrist.npy", mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
-        keys = ["task", "instruction", "state", "subgoal_position", "subgoal_yaw", "along_approach", "chain_start"]
-        if "stacked_picks" in settings:  # the sets made before stacked picks keep their columns
-            keys.append("stacked_pick")
+        keys = ["task", "instruction", "state", "subgoal_position", "subgoal_yaw", "along_approach"]
         columns: dict[str, list] = {k: [] for k in keys}
         for i in tqdm(range(n), desc="rendering grounding scenes", unit="scene", disable=not progress):
-            scene = sample_grounding_scene(i, int(settings["seed"]), layout, kinematics,
-                                           float(settings.get("chain_starts", 0.0)),
-                                           float(settings.get("stacked_picks", 0.0)))
+            scene = sample_grounding_scene(i, int(settings["seed"]), layout, kinematics)
             static[i], wrist[i], _ = renderer.render(scene["spec"])
             for key in columns:
                 value = scene[key]
@@ -284,9 +175,6 @@ class GroundingScenes:
         table = pq.read_table(self.folder / "scenes.parquet").to_pydict()
         self.tasks, self.instructions = table["task"], table["instruction"]
         self.along_approach = np.asarray(table["along_approach"], dtype=bool)
-        # Sets rendered before chain starts existed have no such column: none of their scenes is one.
-        self.chain_start = np.asarray(table.get("chain_start", [False] * len(self.along_approach)), dtype=bool)
-        self.stacked_pick = np.asarray(table.get("stacked_pick", [False] * len(self.along_approach)), dtype=bool)
         self.state = np.asarray(table["state"], dtype=np.float32)
         self.subgoal_position = np.asarray(table["subgoal_position"], dtype=np.float32)
         self.subgoal_yaw = np.asarray(table["subgoal_yaw"], dtype=np.float32)

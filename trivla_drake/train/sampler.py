@@ -1,8 +1,7 @@
 """A distributed, resumable batch sampler: the batch of every (step, rank) is a pure function of
 (seed, step, rank, world size), so a resumed run continues with exactly the batches it would have seen.
 
-Epoch e shuffles all N sample indices (each repeated `repeats[i]` times when given, so a sample of
-weight w comes w times as often) with a generator seeded by (seed, e); rank r takes every
+Epoch e shuffles all N sample indices with a generator seeded by (seed, e); rank r takes every
 world-th index starting at r (the padding of DistributedSampler: the permutation is extended by its
 own head so every rank gets the same number); each rank then cuts its share into batches and drops
 the incomplete last one. Step s is batch s % steps_per_epoch of epoch s // steps_per_epoch.
@@ -29,18 +28,9 @@ class StepBatchSampler:
         start_step: int = 0,
         total_steps: int,
         shuffle: bool = True,
-        repeats=None,
     ) -> None:
         if num_samples < 1:
             raise ValueError("the dataset has no training samples")
-        self._pool = None  # the indices an epoch shuffles, when samples repeat
-        if repeats is not None:
-            repeats = torch.as_tensor(repeats, dtype=torch.int64)
-            if repeats.shape != (num_samples,) or bool((repeats < 1).any()):
-                raise ValueError(f"repeats must hold one integer >= 1 per sample ({num_samples}); got shape "
-                                 f"{tuple(repeats.shape)}, minimum {int(repeats.min()) if repeats.numel() else None}")
-            self._pool = torch.repeat_interleave(torch.arange(num_samples), repeats)
-            num_samples = len(self._pool)
         if not 0 <= rank < world_size:
             raise ValueError(f"rank {rank} not in [0, {world_size})")
         self.num_samples, self.batch_size = num_samples, batch_size
@@ -59,8 +49,6 @@ class StepBatchSampler:
             perm = torch.randperm(self.num_samples, generator=g)
         else:
             perm = torch.arange(self.num_samples)
-        if self._pool is not None:
-            perm = self._pool[perm]
         total = self.per_rank * self.world_size
         if total > len(perm):
             perm = torch.cat([perm, perm.repeat(-(-total // len(perm)))[: total - len(perm)]])

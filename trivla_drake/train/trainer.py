@@ -38,6 +38,10 @@ from trivla_drake.train.distributed import DistEnv, setup_distributed, teardown_
 from trivla_drake.train.features import hash_module_weights
 from trivla_drake.train.weight_average import WeightAverage
 
+# System 1's state MLP reads the tool-centre-point pose computed from the joint angles (policy.tcp_features):
+# every run adds it where its start has none (the switch to leave it out went with the experiments).
+TCP_FEATURES = True
+
 StepCallback = Callable[[int], None]
 
 
@@ -56,35 +60,22 @@ def _transfer_weights(source: nn.Module, target: nn.Module) -> int:
 
 def apply_ablations(
     model: TriVLA, use_system2: bool, use_system3: bool, where: str, tcp_features: bool | None = None,
-    image_token_norm: bool = False,
     vl_position_embedding: bool = False,
     dense_classes: int = 0,
     instruction_grounding: bool = False,
     subgoal_offset: bool = False,
-    grounding_reads_tcp: bool = False,
-    subgoal_yaw: bool = False,
     dense_subcells: int | None = None,
     grounding_reads_gripper: bool = False,
-    grounding_anchor_camera: tuple[float, ...] = (),
-    grounding_anchor_wrist_camera: tuple[float, ...] = (),
 ) -> TriVLA:
     """`model` with Systems 2 / 3 dropped as asked, System 1's tcp features set to `tcp_features`
     (None: as they are), rebuilt when anything changes (keeping every weight that still fits), with:
-    - `image_token_norm`: a fresh batch norm of System 2's image tokens where it has none;
     - `vl_position_embedding`: a fresh embedding of Q_vl's token positions in System 1 where it has none;
     - `dense_classes` > 0: a fresh block head on System 2's image tokens where it has none, or where its
       `dense_subcells` differ from those asked (None: as they are);
     - `instruction_grounding`: a fresh instruction grounding in System 1 where it has none;
     - `subgoal_offset`: a fresh sub-goal offset encoder (output at zero) where it has none;
-    - `grounding_reads_tcp`: a grounding that reads the tcp features (its sub-goal head's first layer
-      and tcp path fresh) where it reads none;
-    - `subgoal_yaw`: a fresh yaw head in the grounding and yaw encoder (output at zero) where it has none;
     - `grounding_reads_gripper`: a grounding with a held-block read-out (a copy of its read-out) where it
-      has none;
-    - `grounding_anchor_camera` (a calibration, nn/camera_cells.py): a grounding anchored on that camera's
-      image cells (a fresh anchor) where it has no anchor; one that has keeps its own;
-    - `grounding_anchor_wrist_camera` (the wrist camera's, in the tcp frame): the anchor also on the wrist
-      view's cells where it has none (its static places and weights kept).
+      has none.
     A system missing from `model` cannot be switched back on: ValueError."""
     cfg = model.config
     for name, wanted, have in (("System 2", use_system2, cfg.use_system2), ("System 3", use_system3, cfg.use_system3)):
@@ -94,35 +85,23 @@ def apply_ablations(
                 f"pass --no-system{name[-1]} or start from a checkpoint that has it"
             )
     tcp = cfg.policy.tcp_features if tcp_features is None else tcp_features
-    norm = cfg.vision_language.image_token_norm or (image_token_norm and use_system2)
     vl_position = use_system2 and (cfg.policy.vl_position_embedding or vl_position_embedding)
     classes = cfg.vision_language.dense_classes or (dense_classes if use_system2 else 0)
     subcells = cfg.vision_language.dense_subcells if dense_subcells is None or not classes else dense_subcells
     grounding = use_system2 and (cfg.policy.instruction_grounding or instruction_grounding)
     offset = grounding and tcp and (cfg.policy.subgoal_offset or subgoal_offset)
-    reads_tcp = grounding and tcp and (cfg.policy.grounding_reads_tcp or grounding_reads_tcp)
-    yaw = grounding and tcp and (cfg.policy.subgoal_yaw or subgoal_yaw)
     reads_gripper = grounding and (cfg.policy.grounding_reads_gripper or grounding_reads_gripper)
-    anchor = tuple(cfg.policy.grounding_anchor_camera or grounding_anchor_camera) if grounding else ()
-    wrist_anchor = (tuple(cfg.policy.grounding_anchor_wrist_camera or grounding_anchor_wrist_camera)
-                    if anchor and tcp else ())
-    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.vision_language.image_token_norm,
-            cfg.policy.vl_position_embedding, cfg.vision_language.dense_classes,
-            cfg.policy.instruction_grounding, cfg.policy.subgoal_offset, cfg.policy.grounding_reads_tcp,
-            cfg.policy.subgoal_yaw, cfg.vision_language.dense_subcells, cfg.policy.grounding_reads_gripper,
-            tuple(cfg.policy.grounding_anchor_camera), tuple(cfg.policy.grounding_anchor_wrist_camera)) == (
-            use_system2, use_system3, tcp, norm, vl_position, classes, grounding, offset, reads_tcp, yaw, subcells,
-            reads_gripper, anchor, wrist_anchor):
+    if (cfg.use_system2, cfg.use_system3, cfg.policy.tcp_features, cfg.policy.vl_position_embedding,
+            cfg.vision_language.dense_classes, cfg.policy.instruction_grounding, cfg.policy.subgoal_offset,
+            cfg.vision_language.dense_subcells, cfg.policy.grounding_reads_gripper) == (
+            use_system2, use_system3, tcp, vl_position, classes, grounding, offset, subcells, reads_gripper):
         return model
     new_config = dataclasses.replace(
         cfg, use_system2=use_system2, use_system3=use_system3,
         policy=dataclasses.replace(cfg.policy, tcp_features=tcp, vl_position_embedding=vl_position,
                                    instruction_grounding=grounding, subgoal_offset=offset,
-                                   grounding_reads_tcp=reads_tcp, subgoal_yaw=yaw,
-                                   grounding_reads_gripper=reads_gripper, grounding_anchor_camera=anchor,
-                                   grounding_anchor_wrist_camera=wrist_anchor),
-        vision_language=dataclasses.replace(cfg.vision_language, image_token_norm=norm, dense_classes=classes,
-                                            dense_subcells=subcells),
+                                   grounding_reads_gripper=reads_gripper),
+        vision_language=dataclasses.replace(cfg.vision_language, dense_classes=classes, dense_subcells=subcells),
     )
     tokenizers = {}
     if use_system2:
@@ -196,18 +175,13 @@ def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
                       use_system2=config.use_system2, use_system3=config.use_system3)
     vision_language = cfg.vision_language
     return dataclasses.replace(
-        cfg, policy=dataclasses.replace(cfg.policy, tcp_features=config.tcp_features,
+        cfg, policy=dataclasses.replace(cfg.policy, tcp_features=TCP_FEATURES,
                                         vl_position_embedding=config.vl_position_embedding and config.use_system2,
                                         instruction_grounding=config.grounding_weight > 0,
                                         subgoal_offset=config.subgoal_offset,
-                                        grounding_reads_tcp=config.grounding_reads_tcp,
-                                        grounding_reads_gripper=config.grounding_reads_gripper,
-                                        grounding_anchor_camera=config.grounding_anchor_camera,
-                                        grounding_anchor_wrist_camera=config.grounding_anchor_wrist_camera,
-                                        subgoal_yaw=config.subgoal_yaw),
+                                        grounding_reads_gripper=config.grounding_reads_gripper),
         vision_language=dataclasses.replace(
-            vision_language, image_token_norm=config.image_token_norm,
-            dense_classes=_dense_classes(config) if config.use_system2 else 0,
+            vision_language, dense_classes=_dense_classes(config) if config.use_system2 else 0,
             dense_subcells=config.dense_subcells or 1,
             drop_unused_llm_layers=vision_language.drop_unused_llm_layers and config.stage != "vlm"),
     )
@@ -225,39 +199,18 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow" and model.policy.grounding is None:
             raise ValueError(f"grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              f"{where}, which has none: train one with --grounding-phase bind first")
-        if (config.grounding_phase == "follow" and config.grounding_reads_tcp
-                and not model.config.policy.grounding_reads_tcp):
-            raise ValueError(f"grounding_reads_tcp (--grounding-reads-tcp) changes the instruction grounding, which a "
-                             f"follow run keeps as its {where} has it (reading no tcp): bind one with "
-                             f"--grounding-reads-tcp first")
-        if config.grounding_phase == "follow" and config.subgoal_yaw and not model.config.policy.subgoal_yaw:
-            raise ValueError(f"subgoal_yaw (--subgoal-yaw) adds a yaw head to the instruction grounding, which a "
-                             f"follow run keeps as its {where} has it (with none): bind one with --subgoal-yaw first")
         if (config.grounding_phase == "follow" and config.grounding_reads_gripper
                 and not model.config.policy.grounding_reads_gripper):
             raise ValueError(f"grounding_reads_gripper (--grounding-reads-gripper) changes the instruction grounding, "
                              f"which a follow run keeps as its {where} has it (reading no gripper): bind one with "
                              f"--grounding-reads-gripper first")
-        for field, flag in (("grounding_anchor_camera", "--grounding-anchor"),
-                            ("grounding_anchor_wrist_camera", "--grounding-anchor-wrist")):
-            if (config.grounding_phase == "follow" and getattr(config, field)
-                    and not getattr(model.config.policy, field)):
-                raise ValueError(f"{field} ({flag}) changes the instruction grounding's anchor, which a follow run "
-                                 f"keeps as its {where} has it: bind one with {flag} first")
-        if (config.bind_held_only and config.grounding_anchor_camera
-                and not model.config.policy.grounding_anchor_camera):
-            raise ValueError(f"grounding_anchor_camera (--grounding-anchor) adds an anchor that both of the "
-                             f"grounding's read-outs use, which bind_held_only (--bind-held-only) would leave "
-                             f"untrained: its {where} has none; bind one without --bind-held-only first")
         if config.keep_grounding and model.policy.grounding is None:
             raise ValueError(f"keep_grounding (--keep-grounding) continues the instruction grounding of its {where}, "
                              f"which has none: bind one without --keep-grounding first")
-        model = apply_ablations(model, config.use_system2, config.use_system3, where, config.tcp_features,
-                                config.image_token_norm, config.vl_position_embedding, _dense_classes(config),
-                                config.grounding_weight > 0, config.subgoal_offset, config.grounding_reads_tcp,
-                                config.subgoal_yaw, config.dense_subcells if config.dense_weight > 0 else None,
-                                config.grounding_reads_gripper, config.grounding_anchor_camera,
-                                config.grounding_anchor_wrist_camera)
+        model = apply_ablations(model, config.use_system2, config.use_system3, where, TCP_FEATURES,
+                                config.vl_position_embedding, _dense_classes(config), config.grounding_weight > 0,
+                                config.subgoal_offset, config.dense_subcells if config.dense_weight > 0 else None,
+                                config.grounding_reads_gripper)
         if config.system2_from is not None:
             model = replace_system2(model, load_checkpoint(config.system2_from), f"--system2-from {config.system2_from}")
         if config.fresh_system1:
@@ -272,34 +225,22 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.grounding_phase == "follow":
             raise ValueError("grounding_phase (--grounding-phase) follow keeps the instruction grounding of its "
                              "--init checkpoint: pass --init with a --grounding-phase bind run's checkpoint")
-        model = TriVLA(fresh_model_config(config))
-        check_subgoal_noise(config, model, f"preset {config.preset!r}")
-        return model
+        return TriVLA(fresh_model_config(config))
     if model.config.preset != config.preset:
         raise ValueError(f"{where} is preset {model.config.preset!r}, not {config.preset!r}")
     if (model.config.use_system2, model.config.use_system3) != (config.use_system2, config.use_system3):
         raise ValueError(f"{where} has use_system2/3 = {model.config.use_system2}/{model.config.use_system3}, "
                          f"the run asks {config.use_system2}/{config.use_system3}")
     vl_config = model.config.vision_language
-    if (config.stage == "vlm" and model.vision_language is not None and vl_config.drop_unused_llm_layers
-            and config.answer_weight):
+    if config.stage == "vlm" and model.vision_language is not None and vl_config.drop_unused_llm_layers:
         raise ValueError(f"{where} has vision_language.drop_unused_llm_layers: its LLM ends at the read-out "
                          f"layer (select_layer {vl_config.select_layer}), so the vlm stage would train the "
                          f"answers on Q_vl itself; start from the checkpoint it was exported from "
-                         f"(export without --drop-unused-llm-layers), or train the dense loss alone "
-                         f"(--answer-weight 0)")
-    check_subgoal_noise(config, model, where)
-    if model.config.policy.tcp_features != config.tcp_features:
-        raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}, the run asks "
-                         f"{config.tcp_features} (--no-tcp-features)")
+                         f"(export without --drop-unused-llm-layers)")
+    if model.config.policy.tcp_features != TCP_FEATURES:
+        raise ValueError(f"{where} has policy.tcp_features = {model.config.policy.tcp_features}: every run of this "
+                         f"code trains with the tcp features")
     return model
-
-
-def check_subgoal_noise(config: TrainConfig, model: TriVLA, where: str) -> None:
-    """ValueError naming --subgoal-noise when the run asks for it and `model` has no offset encoder."""
-    if config.subgoal_noise and model.policy.subgoal_offset is None:
-        raise ValueError(f"subgoal_noise (--subgoal-noise) moves the sub-goal System 1's offset encoder reads, and "
-                         f"the {where} has none: add one with --subgoal-offset")
 
 
 def check_grounding(reader, grounding_weight: float, where: str) -> None:
@@ -338,25 +279,21 @@ def trainable_module(model: TriVLA, stage: str) -> nn.Module:
 class StageLoss(nn.Module):
     """The stage's loss as a module's forward (what DistributedDataParallel wraps)."""
 
-    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, vlm_loss_weighting: str = "token",
-                 dense_weight: float = 0.0, grounding_weight: float = 0.0, grounding_phase: str = "joint",
-                 subgoal_noise: float = 0.0, answer_weight: float = 1.0) -> None:
+    def __init__(self, model: TriVLA, stage: str, generator: torch.Generator, dense_weight: float = 0.0,
+                 grounding_weight: float = 0.0, grounding_phase: str = "joint") -> None:
         super().__init__()
         self.model, self.stage, self.generator = model, stage, generator
-        self.vlm_loss_weighting, self.dense_weight = vlm_loss_weighting, dense_weight
+        self.dense_weight = dense_weight
         self.grounding_weight, self.grounding_phase = grounding_weight, grounding_phase
-        self.subgoal_noise, self.answer_weight = subgoal_noise, answer_weight
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         if self.stage == "video":
             return self.model.compute_video_loss(batch, generator=self.generator)
         if self.stage == "vlm":
-            return self.model.compute_vlm_loss(batch, weighting=self.vlm_loss_weighting, dense_weight=self.dense_weight,
-                                               answer_weight=self.answer_weight)
+            return self.model.compute_vlm_loss(batch, dense_weight=self.dense_weight)
         if self.grounding_phase == "bind":
             return self.model.compute_grounding_loss(batch)
-        return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight,
-                                       subgoal_noise=self.subgoal_noise)
+        return self.model.compute_loss(batch, generator=self.generator, grounding_weight=self.grounding_weight)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -463,7 +400,7 @@ def _prepare_data(config: TrainConfig, model: TriVLA, readers: list, env: DistEn
     progress = config.progress and env.is_main
     reader = readers[0] if readers else None
     if config.stage == "video":
-        episodes = ds.select_episodes(reader, config.fraction, config.seed)
+        episodes = list(range(reader.num_episodes))
         dyn = model.config.dynamics
         store = ds.FrameStore(reader, [config.static_camera, config.wrist_camera], dyn.video_size,
                               Path(config.cache_dir) / "clips")
@@ -503,7 +440,7 @@ def _prepare_data(config: TrainConfig, model: TriVLA, readers: list, env: DistEn
 
     from trivla_drake.train.dataset_union import PolicyDatasetUnion, check_each_folder_adds, drop_repeated_episodes
 
-    chosen = [ds.select_episodes(r, config.fraction, config.seed) for r in readers]
+    chosen = [list(range(r.num_episodes)) for r in readers]
     chosen, repeated = drop_repeated_episodes(readers, chosen)
     parts, summary = [], {}
     check_each_folder_adds(readers, chosen)
@@ -616,17 +553,14 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         check_same_fps(readers)
         check_same_features(readers)
         fitted = union_normalization(readers, model.config)
-        if train_state is not None and not config.keep_normalization:
+        if train_state is not None:
             check_resumed_normalization(model.normalization, fitted, where)
-        if config.keep_normalization:
-            _note(env, f"keeping {where}'s state and action normalisation (--keep-normalization)")
-        else:
-            if config.init and train_state is None:
-                narrowed = narrowed_action_ranges(model.normalization, fitted, model.config.action_names)
-                if narrowed:
-                    _note(env, f"--data's action ranges are narrower than {where}'s, so its outputs are rescaled: "
-                               f"{'; '.join(narrowed)} (--keep-normalization keeps --init's)")
-            model.set_normalization(fitted)
+        if config.init and train_state is None:
+            narrowed = narrowed_action_ranges(model.normalization, fitted, model.config.action_names)
+            if narrowed:
+                _note(env, f"--data's action ranges are narrower than {where}'s, so its outputs are rescaled: "
+                           f"{'; '.join(narrowed)}")
+        model.set_normalization(fitted)
 
     torch.manual_seed(config.seed)
     model.requires_grad_(False)
@@ -639,8 +573,6 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             p.requires_grad_(name in trained_in_bind if config.grounding_phase == "bind" else name not in binding)
     if config.stage == "vlm" and model.vision_language.block_head is not None and not config.dense_weight:
         model.vision_language.block_head.requires_grad_(False)  # no dense loss: the head gets no gradient
-    if config.stage == "vlm" and not config.answer_weight:
-        model.vision_language.llm.requires_grad_(False)  # the dense loss alone: the LLM is not run
     model.to(env.device)
     model.eval()
     trained.train()
@@ -664,14 +596,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     from trivla_drake.train.sampler import StepBatchSampler
 
-    repeats = None
-    if config.stage == "policy" and config.gripper_event_weight > 1:
-        window = max(1, math.ceil(config.gripper_event_window_s * reader.fps - 1e-9))  # frames < S seconds before
-        repeats = dataset.gripper_event_repeats(window, config.gripper_event_weight)
-        data_summary["gripper_event_samples"] = int((repeats > 1).sum())
     sampler = StepBatchSampler(len(dataset), config.batch_size, seed=config.seed, rank=env.rank,
-                               world_size=env.world_size, start_step=start_step, total_steps=config.steps,
-                               repeats=repeats)
+                               world_size=env.world_size, start_step=start_step, total_steps=config.steps)
     loader = torch.utils.data.DataLoader(dataset, batch_sampler=sampler, collate_fn=collate,
                                          num_workers=config.workers, persistent_workers=False)
     optimizer = _optimizer(trained, config)
@@ -687,8 +613,8 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         if "weight_average" not in train_state:
             raise ValueError(f"cannot resume {resume_from}: it holds no weight average")
         average.load_state_dict(train_state["weight_average"])  # and the trained weights back into the model
-    loss_module = StageLoss(model, config.stage, generator, config.vlm_loss_weighting, config.dense_weight,
-                            config.grounding_weight, config.grounding_phase, config.subgoal_noise, config.answer_weight)
+    loss_module = StageLoss(model, config.stage, generator, config.dense_weight, config.grounding_weight,
+                            config.grounding_phase)
     runner: nn.Module = loss_module
     if env.distributed:
         runner = nn.parallel.DistributedDataParallel(
@@ -771,7 +697,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
         "step_time_s": float(np.median(step_times[1:] or step_times)) if step_times else None,
         **data_summary,
     }
-    if config.stage == "vlm" and env.is_main and config.vqa_eval_questions > 0 and config.answer_weight:
+    if config.stage == "vlm" and env.is_main and config.vqa_eval_questions > 0:
         from trivla_drake.train import vqa
 
         eval_started = time.time()
