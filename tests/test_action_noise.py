@@ -8,6 +8,7 @@ import pytest
 from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader, LeRobotWriter, vector_feature
 from trivla_drake.data.samples import TrainingSamples, perturbed_counts
 from trivla_drake.eval.action_noise import PerturbationBursts
+from trivla_drake.eval.plugin_config import PluginConfig
 
 
 def test_bursts_disturb_motion_only_for_their_length():
@@ -37,12 +38,22 @@ def test_bad_burst_settings_name_the_field(kwargs, field):
         PerturbationBursts(**kwargs)
 
 
-def test_bad_action_noise_scale_is_a_clear_error():
+def _dart(scale: float) -> PluginConfig:
+    return PluginConfig("dart", {"scale": scale})
+
+
+def test_bad_perturbations_are_clear_errors_naming_the_field():
     from trivla_drake.eval.collect import CollectConfig
 
     for bad in (-1.0, 100.0, float("nan")):
-        with pytest.raises(ValueError, match="--action-noise"):
-            CollectConfig(out="unused", episodes_per_task=1, action_noise=bad).validate()
+        with pytest.raises(ValueError, match=r"perturbation \(dart\): scale must be in \[0, "):
+            CollectConfig(out="unused", episodes_per_task=1, perturbation=_dart(bad)).validate()
+    with pytest.raises(ValueError, match="perturbation.settings of dart: .*'rate'"):
+        CollectConfig(out="unused", episodes_per_task=1, perturbation=PluginConfig("dart", {"rate": 1.0})).validate()
+    with pytest.raises(ValueError, match="perturbation.settings .* without a perturbation.name"):
+        CollectConfig(out="unused", episodes_per_task=1, perturbation=PluginConfig("", {"scale": 1.0})).validate()
+    with pytest.raises(ValueError, match="unknown perturbation 'dartt'"):
+        CollectConfig(out="unused", episodes_per_task=1, perturbation=PluginConfig("dartt")).validate()
 
 
 def test_perturbed_counts():
@@ -71,7 +82,8 @@ def test_noisy_collection_records_disturbed_frames(tmp_path):
 
     out = tmp_path / "dart"
     summary = collect(
-        CollectConfig(out=str(out), episodes_per_task=1, tasks=["turn_on_light"], image_size=32, action_noise=3.0),
+        CollectConfig(out=str(out), episodes_per_task=1, tasks=["turn_on_light"], image_size=32,
+                      perturbation=_dart(3.0)),
         progress=False,
     )
     assert summary["per_task"] == {"turn_on_light": 1}
@@ -84,15 +96,16 @@ def test_noisy_collection_records_disturbed_frames(tmp_path):
 
 
 def test_dart_is_a_registered_perturbation_and_an_unknown_name_lists_the_registered_ones():
-    """`make_perturbation("dart", scale=x)` is collect's --action-noise x; a name not registered is refused, naming
+    """`make_perturbation("dart", scale=x)` is collect's perturbation {name: dart, settings: {scale: x}}; a name not registered is refused, naming
     the registered ones; a name registered twice is refused."""
     from trivla_drake.eval.collect import CollectConfig
     from trivla_drake.eval.perturbations import PERTURBATIONS, make_perturbation, register_perturbation
 
     assert make_perturbation("dart", scale=2.0) == PerturbationBursts.scaled(2.0)
-    assert CollectConfig(out="unused", episodes_per_task=1, action_noise=2.0).disturbance() == make_perturbation(
+    assert CollectConfig(out="unused", episodes_per_task=1, perturbation=_dart(2.0)).disturbance() == make_perturbation(
         "dart", scale=2.0)
     assert CollectConfig(out="unused", episodes_per_task=1).disturbance() is None
+    assert CollectConfig(out="unused", episodes_per_task=1, perturbation=_dart(0.0)).disturbance() is None
     with pytest.raises(ValueError, match=r"unknown perturbation 'dartt'; registered: .*dart"):
         make_perturbation("dartt")
     with pytest.raises(ValueError, match="'dart' is registered already"):

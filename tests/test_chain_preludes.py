@@ -1,4 +1,4 @@
-"""Chain preludes (`collect --prelude-tasks`): before the recorded task the oracle completes one or more
+"""Chain preludes (`collect --set prelude_tasks=N`): before the recorded task the oracle completes one or more
 other tasks of a chain, unrecorded, so the demonstration starts where a chain's earlier tasks leave the
 scene and the hand, as the second to fifth tasks of a 5-task chain do. Never a lift (it leaves the block
 in the hand); a prelude that fails, or leaves the task no way to start, fails the attempt with the
@@ -83,10 +83,10 @@ def test_a_prelude_needs_a_privileged_policy_to_run_it():
 
 
 @pytest.mark.parametrize("value", [-1, 5, True, 1.0])
-def test_bad_prelude_tasks_settings_name_the_flag(value):
+def test_bad_prelude_tasks_settings_name_the_field(value):
     from trivla_drake.eval.collect import CollectConfig
 
-    with pytest.raises(ValueError, match="--prelude-tasks"):
+    with pytest.raises(ValueError, match="prelude_tasks must be"):
         CollectConfig(out="unused", episodes_per_task=1, prelude_tasks=value).validate()
 
 
@@ -158,10 +158,10 @@ def test_evaluate_redraws_a_failed_prelude_then_reports_its_reason(monkeypatch):
 
 
 @pytest.mark.parametrize("value", [-1, 5, True])
-def test_bad_evaluate_preludes_name_the_flag(value):
+def test_bad_evaluate_preludes_name_the_field(value):
     from trivla_drake.eval.evaluate import EvalConfig
 
-    with pytest.raises(ValueError, match="--prelude must be"):
+    with pytest.raises(ValueError, match="prelude must be"):
         EvalConfig(tasks=["open_drawer"], episodes=1, prelude=value).validate()
 
 

@@ -63,7 +63,7 @@ def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_pat
     source = tmp_path / "full"
     save_checkpoint(model, str(source))
     out = tmp_path / "trimmed"
-    assert main(["export", str(source), "--out", str(out), "--dtype", "float32", "--drop-unused-llm-layers"]) == 0
+    assert main(["export", str(source), "--out", str(out), "--set", "dtype=float32", "--set", "drop_unused_llm_layers=true"]) == 0
     assert _size(out) < _size(source)
     trimmed = load_checkpoint(str(out)).eval()
     vl = trimmed.vision_language

@@ -1,4 +1,4 @@
-"""How the harness plays TriVLA's action chunks (`--execute-steps`, `--ensemble-decay`): replanning every
+"""How the harness plays TriVLA's action chunks (`inference.execute_steps`, `inference.ensemble_decay`): replanning every
 K steps plays the first K rows of each chunk, ACT's temporal ensembling averages the chunks that cover a
 step, and bad settings are named."""
 
@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from trivla_drake.eval.evaluate import EvalConfig
+from trivla_drake.eval.inference_config import InferenceConfig
 from trivla_drake.eval.policies import load_policy
 from trivla_drake.eval.trivla_harness_policy import TriVLAHarnessPolicy
 from trivla_drake.nn import TriVLA, make_config, save_checkpoint
@@ -100,59 +101,62 @@ def test_bad_execute_steps_are_named(bad):
     with pytest.raises(ValueError, match="execute_steps"):
         TriVLAHarnessPolicy(CountingModel(), execute_steps=bad)
     if bad != 11:  # the chunk length is the checkpoint's, checked when it loads
-        with pytest.raises(ValueError, match="--execute-steps"):
-            EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1, execute_steps=bad).validate()
+        with pytest.raises(ValueError, match="inference.execute_steps"):
+            EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1,
+                       inference=InferenceConfig(execute_steps=bad)).validate()
 
 
 @pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf, "fast"])
 def test_bad_ensemble_decays_are_named(bad):
     with pytest.raises(ValueError, match="ensemble_decay"):
         TriVLAHarnessPolicy(CountingModel(), execute_steps=5, ensemble_decay=bad)
-    with pytest.raises(ValueError, match="--ensemble-decay"):
-        EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1, ensemble_decay=bad).validate()
+    with pytest.raises(ValueError, match="inference.ensemble_decay"):
+        EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1,
+                   inference=InferenceConfig(ensemble_decay=bad)).validate()
 
 
 def test_chunk_settings_with_a_policy_that_has_no_chunks_are_errors_at_the_cli(capsys):
     from trivla_drake.cli import main
 
-    with pytest.raises(ValueError, match="--execute-steps applies to TriVLA checkpoints only"):
+    with pytest.raises(ValueError, match="inference.execute_steps applies to TriVLA checkpoints only"):
         load_policy("oracle", execute_steps=5)
     assert main(["evaluate", "--policy", "random", "--tasks", "lift_block", "--episodes", "1",
-                 "--ensemble-decay", "0.1", "--no-progress"]) == 2
-    assert "--ensemble-decay" in capsys.readouterr().err
+                 "--set", "inference.ensemble_decay=0.1", "--no-progress"]) == 2
+    assert "inference.ensemble_decay" in capsys.readouterr().err
     assert main(["evaluate", "--policy", "trivla", "--tasks", "lift_block", "--episodes", "1",
-                 "--execute-steps", "0", "--no-progress"]) == 2
-    assert "--execute-steps" in capsys.readouterr().err
+                 "--set", "inference.execute_steps=0", "--no-progress"]) == 2
+    assert "inference.execute_steps" in capsys.readouterr().err
 
 
 def test_demo_and_tables_take_the_same_settings_and_name_bad_ones(tmp_path, capsys):
     from trivla_drake.cli import main
     from trivla_drake.eval.paper_tables import TablesConfig, _stored
 
-    assert main(["demo", "--policy", "oracle", "--execute-steps", "5"]) == 2
-    assert "--execute-steps" in capsys.readouterr().err
+    assert main(["demo", "--policy", "oracle", "--set", "inference.execute_steps=5"]) == 2
+    assert "inference.* and --latency go with --policy trivla" in capsys.readouterr().err
     save_checkpoint(TriVLA(make_config("tiny"), load_pretrained=False), str(tmp_path / "ckpt"))
-    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--execute-steps", "11"]) == 2
-    assert "--execute-steps must be an integer from 1 to the chunk length 10" in capsys.readouterr().err
-    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--ensemble-decay", "-1"]) == 2
-    assert "--ensemble-decay" in capsys.readouterr().err
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--set", "inference.execute_steps=11"]) == 2
+    assert "inference.execute_steps must be an integer from 1 to the chunk length 10" in capsys.readouterr().err
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--set", "inference.ensemble_decay=-1"]) == 2
+    assert "inference.ensemble_decay" in capsys.readouterr().err
     # A short Drake run records its settings, and every tick plays an action.
-    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--task", "turn_on_light", "--max-seconds", "0.5",
-                 "--execute-steps", "5", "--ensemble-decay", "0.1", "--json"]) == 0
+    assert main(["demo", "--checkpoint", str(tmp_path / "ckpt"), "--task", "turn_on_light", "--set", "max_seconds=0.5",
+                 "--set", "inference.execute_steps=5", "--set", "inference.ensemble_decay=0.1", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert (report["execute_steps"], report["ensemble_decay"]) == (5, 0.1)
     assert report["control_hz"] == pytest.approx(36.0, rel=0.03)
     full = {"full": str(tmp_path / "ckpt")}
-    with pytest.raises(ValueError, match="--execute-steps"):
-        TablesConfig(checkpoints=full, execute_steps=0).validate()
-    with pytest.raises(ValueError, match="--ensemble-decay"):
-        TablesConfig(checkpoints=full, ensemble_decay=math.nan).validate()
+    with pytest.raises(ValueError, match="inference.execute_steps"):
+        TablesConfig(checkpoints=full, inference=InferenceConfig(execute_steps=0)).validate()
+    with pytest.raises(ValueError, match="inference.ensemble_decay"):
+        TablesConfig(checkpoints=full, inference=InferenceConfig(ensemble_decay=math.nan)).validate()
 
     # `tables` stores each setting's evaluations apart, and the default's under its old key.
     settings = {"kind": "evaluate", "seed": 0}
     stored = str(tmp_path / "stored")
-    default, replanning = TablesConfig(results_dir=stored), TablesConfig(results_dir=stored, execute_steps=5)
-    ensembled = TablesConfig(results_dir=stored, execute_steps=5, ensemble_decay=0.1)
+    default = TablesConfig(results_dir=stored)
+    replanning = TablesConfig(results_dir=stored, inference=InferenceConfig(execute_steps=5))
+    ensembled = TablesConfig(results_dir=stored, inference=InferenceConfig(execute_steps=5, ensemble_decay=0.1))
     for config, value in ((default, "default"), (replanning, "k5"), (ensembled, "k5e"), (default, "again")):
         _stored(config, str(tmp_path / "ckpt"), settings, lambda value=value: {"value": value})
     records = [json.loads(p.read_text())["settings"] for p in (tmp_path / "stored").glob("*.json")]

@@ -116,7 +116,7 @@ def test_out_may_replace_an_earlier_export_an_empty_folder_or_anything_with_over
     (["demo", "--episodes", HUGE], "--episodes"),
     (["demo", "--chains", HUGE], "--chains"),
     (["tables", "--full", str(SHIPPED), "--out", "{tmp}/t", "--episodes", HUGE], "--episodes"),
-    (["tables", "--full", str(SHIPPED), "--out", "{tmp}/t", "--latency-episodes", HUGE], "--latency-episodes"),
+    (["tables", "--full", str(SHIPPED), "--out", "{tmp}/t", "--set", f"latency_episodes={HUGE}"], "latency_episodes"),
 ])
 def test_episode_counts_that_cannot_run_are_refused_naming_the_bound(argv, flag, tmp_path, capsys, nothing_runs):
     err = _refused(capsys, [a.replace("{tmp}", str(tmp_path)) for a in argv])
@@ -194,25 +194,29 @@ def test_workers_get_a_few_jobs_ahead_and_results_come_in_order():
 # ------------------------------------------------------------------ demo, sim and bench flags
 
 @pytest.mark.parametrize("argv, message", [
-    (["demo", "--max-seconds", "-1"], "--max-seconds must be a finite number of seconds above 0, got -1"),
-    (["demo", "--max-seconds", "nan"], "--max-seconds must be a finite number of seconds above 0, got nan"),
-    (["demo", "--max-seconds", "inf"], "--max-seconds must be a finite number of seconds above 0, got inf"),
+    (["demo", "--set", "max_seconds=-1"], "max_seconds must be a finite number of seconds above 0, got -1"),
+    (["demo", "--set", "max_seconds=.nan"], "max_seconds must be a finite number of seconds above 0, got nan"),
+    (["demo", "--set", "max_seconds=.inf"], "max_seconds must be a finite number of seconds above 0, got inf"),
     (["demo", "--seed", "4294967296"], "--seed must be an integer from 0 to 4294967295"),
     (["demo", "--seed", "-1"], "--seed must be an integer from 0 to 4294967295"),
     (["demo", "--instruction", ""], "--instruction is empty"),
     (["demo", "--instruction", "  "], "--instruction is empty"),
     (["demo", "--instruction", "pick up the \udcff block"], "--instruction is not UTF-8 text (\\udcff at character 12"),
-    (["demo", "--port", "99999"], "--port must be a port from 0 to 65535"),
-    (["demo", "--port", "-1"], "--port must be a port from 0 to 65535"),
+    (["demo", "--set", "port=99999"], "port must be a port from 0 to 65535"),
+    (["demo", "--set", "port=-1"], "port must be a port from 0 to 65535"),
     (["demo", "--record", "{tmp}"], "--record {tmp} is a folder: give a file name"),
     (["demo", "--record", "{tmp}/notes.txt/run.html"], "notes.txt is a file, not a folder"),
     (["demo", "--episodes", "0"], "--episodes must be at least 1"),
     (["sim", "--seconds", "inf"], "--seconds must be a finite number of seconds above 0, got inf"),
     (["sim", "--seconds", "nan"], "--seconds must be a finite number of seconds above 0, got nan"),
     (["sim", "--seconds", "0"], "--seconds must be a finite number of seconds above 0, got 0"),
-    (["sim", "--port", "99999"], "--port must be a port from 0 to 65535"),
+    (["sim", "--set", "port=99999"], "port must be a port from 0 to 65535"),
     (["sim", "--record", "{tmp}"], "--record {tmp} is a folder: give a file name"),
-    (["bench", "--seconds", "inf"], "--seconds must be a finite number of seconds above 0, got inf"),
+    (["bench", "--set", "seconds=.inf"], "seconds must be a finite number of seconds above 0, got inf"),
+    (["collect", "--out", "{tmp}/data", "--episodes-per-task", "1", "--set", "prelude_tasks=9"],
+     "prelude_tasks must be an integer from 0 to 4"),
+    (["evaluate", "--set", "inference.noise_scale=-1"], "inference.noise_scale must be a finite number >= 0"),
+    (["evaluate", "--set", "episodes_per_task=1"], "EvalConfig has no field 'episodes_per_task'"),
 ])
 def test_flags_are_refused_before_anything_runs(argv, message, tmp_path, capsys, nothing_runs):
     (tmp_path / "notes.txt").write_text("keep")
@@ -222,7 +226,7 @@ def test_flags_are_refused_before_anything_runs(argv, message, tmp_path, capsys,
 
 
 def test_port_zero_means_any_free_port_and_the_default_is_drakes():
-    from trivla_drake.eval.cli_commands import check_port
+    from trivla_drake.eval.setting_checks import check_port
 
     assert check_port(0) == 0 and check_port(None) is None and check_port(65535) == 65535
 
@@ -232,7 +236,7 @@ def test_a_scenario_with_an_unknown_contact_model_is_refused_before_simulating(t
 
     bad = tmp_path / "typo.scenarios.yaml"
     bad.write_text(default_scenario_file().read_text().replace("hydroelastic_with_fallback", "hydroelastik"))
-    err = _refused(capsys, ["sim", "--scenario", str(bad)])
+    err = _refused(capsys, ["sim", "--set", f"scenario={bad}"])
     assert (f"scenario 'default' in {bad}: plant_config.contact_model must be one of hydroelastic, point, "
             "hydroelastic_with_fallback; got 'hydroelastik'") in err
 
@@ -251,8 +255,8 @@ TRAIN = ["train", "--stage", "policy", "--data", "{tmp}/data", "--out", "{tmp}/r
     ([*TABLES, "--seeds", "1000,4294967296"], "--seeds must be an integer from 0 to 4294967295 (a 32-bit seed"),
     ([*TABLES, "--seeds=-1"], "--seeds must be an integer from 0 to 4294967295"),
     ([*TABLES, "--seeds", "1000,1001,1000"], "--seeds names [1000] more than once"),
-    ([*TRAIN, "--seed=-1"], "seed (--seed) must be an integer from 0 to 18446744073709551615 (what torch and numpy"),
-    ([*TRAIN, "--seed", str(2**64)], "seed (--seed) must be an integer from 0 to 18446744073709551615"),
+    ([*TRAIN, "--seed=-1"], "seed must be an integer from 0 to 18446744073709551615 (what torch and numpy"),
+    ([*TRAIN, "--seed", str(2**64)], "seed must be an integer from 0 to 18446744073709551615"),
 ])
 def test_seeds_are_refused_before_anything_runs(argv, message, tmp_path, capsys, monkeypatch, nothing_runs):
     import trivla_drake.eval.policies as policies
@@ -267,5 +271,5 @@ def test_the_widest_seeds_are_taken():
     from trivla_drake.eval.paper_tables import TablesConfig
     from trivla_drake.train import TrainConfig
 
-    TablesConfig(checkpoints={"full": str(SHIPPED)}, seeds=(0, 2**32 - 1)).validate()
+    TablesConfig(checkpoints={"full": str(SHIPPED)}, seeds=[0, 2**32 - 1]).validate()
     TrainConfig(stage="policy", data="d", out="o", seed=2**64 - 1).resolved().validate()

@@ -17,7 +17,7 @@ def _bench(*args):
 
 
 def test_station_bench_reports_diffik_and_realtime_factors():
-    report = _bench("--seconds", "0.6", "--diffik-problems", "50", "--preset", "tiny")
+    report = _bench("--set", "seconds=0.6", "--set", "diffik_problems=50", "--preset", "tiny")
     for key in ("diffik_median_us", "drake_diffik_median_us", "station_rtf_cameras", "station_rtf_no_cameras",
                 "closed_loop_rtf"):
         assert report[key] > 0, key
@@ -35,7 +35,7 @@ def test_model_bench_reports_per_system_params_and_latency():
 
 def test_precision_without_model_is_refused_by_name():
     result = subprocess.run(
-        [sys.executable, "-m", "trivla_drake.cli", "bench", "--precision", "bfloat16"],
+        [sys.executable, "-m", "trivla_drake.cli", "bench", "--set", "precision=bfloat16"],
         capture_output=True, text=True, timeout=120,
     )
-    assert result.returncode != 0 and "--precision goes with --model" in result.stderr
+    assert result.returncode != 0 and "precision goes with --model" in result.stderr

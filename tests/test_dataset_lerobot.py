@@ -162,7 +162,7 @@ def test_training_samples_history_future_and_chunks(tmp_path):
 
 def _collect_command(out: Path, episodes: int) -> list[str]:
     return [sys.executable, "-m", "trivla_drake.eval.cli_commands", "collect", "--out", str(out),
-            "--episodes-per-task", str(episodes), "--tasks", "turn_on_light", "--image-size", "32",
+            "--episodes-per-task", str(episodes), "--tasks", "turn_on_light", "--set", "image_size=32",
             "--no-progress", "--json"]
 
 
@@ -193,6 +193,12 @@ def test_killed_collection_keeps_finished_episodes_and_resumes(tmp_path):
     samples = TrainingSamples(reader)
     assert samples[len(samples) - 1]["action"].shape == (10, 7)
     assert not (out / ".staging").exists()
+    # The dataset keeps the config that made it, which `collect --config` reads back.
+    from trivla_drake.config_io import load_config
+    from trivla_drake.eval.collect import CONFIG_FILE, CollectConfig
+
+    stored = load_config(CollectConfig, out / CONFIG_FILE)
+    assert stored == CollectConfig(out=str(out), episodes_per_task=4, tasks=["turn_on_light"], image_size=32)
 
 
 def test_collected_episode_rows_share_one_schema(tmp_path):

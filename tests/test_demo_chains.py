@@ -129,13 +129,13 @@ def test_cli_runs_chains_and_prints_avg_len(tmp_path, tiny_model):
     from trivla_drake.nn import save_checkpoint
 
     save_checkpoint(tiny_model, str(tmp_path / "tiny"))
-    result = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--max-seconds", "0.5")
+    result = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--set", "max_seconds=0.5")
     assert result.returncode == 0, result.stderr[-3000:]
     assert "| chains | 1/5 | 2/5 | 3/5 | 4/5 | 5/5 | Avg. Len |" in result.stdout
     assert "| 0.00 (one chain) |" in result.stdout  # no standard error from a single chain
     assert "Avg. Len 0.00, control" in result.stdout and "| 0 (1/5) |" in result.stdout
     assert "demo chains" in result.stderr  # the progress bar
-    shown = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--max-seconds", "0.3", "--json",
+    shown = _cli("--checkpoint", str(tmp_path / "tiny"), "--chains", "1", "--set", "max_seconds=0.3", "--json",
                  "--no-progress")
     report = json.loads(shown.stdout)
     assert report["chain_avg_len"] == 0.0 and len(report["chain_runs"]) == 1 and "success_rate" not in report

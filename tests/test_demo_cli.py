@@ -30,7 +30,7 @@ def _demo(*args):
 
 @pytest.mark.parametrize("latency", ["zero", "0.2"])
 def test_trivla_demo_reports_success_control_rate_and_speed(tiny_checkpoint, latency):
-    report = _demo("--checkpoint", str(tiny_checkpoint), "--task", "lift_block", "--max-seconds", "1.5",
+    report = _demo("--checkpoint", str(tiny_checkpoint), "--task", "lift_block", "--set", "max_seconds=1.5",
                    "--latency", latency)
     for key in ("success_rate", "control_hz", "realtime_factor"):
         assert key in report

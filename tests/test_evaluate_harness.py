@@ -61,8 +61,8 @@ def test_unknown_task_and_policy_are_clear_errors(capsys):
 
 
 def test_bad_thread_count_is_a_clear_error(capsys):
-    assert main(["evaluate", "--tasks", "lift_block", "--episodes", "1", "--threads", "0", "--no-progress"]) == 2
-    assert "--threads must be at least 1" in capsys.readouterr().err
+    assert main(["evaluate", "--tasks", "lift_block", "--episodes", "1", "--set", "threads=0", "--no-progress"]) == 2
+    assert "threads must be at least 1" in capsys.readouterr().err
 
 
 def test_a_directory_that_is_not_a_checkpoint_is_a_clear_error(tmp_path, capsys):
@@ -185,7 +185,7 @@ def test_chains_only_report_has_no_task_rows():
 
 
 def test_chains_take_evaluates_max_steps_as_single_episodes_do():
-    """`evaluate --max-steps N --chains K`: every chain task gets N steps, so a capped run caps Avg. Len too."""
+    """`evaluate --set max_steps=N --chains K`: every chain task gets N steps, so a capped run caps Avg. Len too."""
     config = EvalConfig(policy="oracle", tasks=[], chains=1, max_steps=3, seed=5)
     report = evaluate(config, progress=False)
     assert report["chain_avg_len"] == 0.0

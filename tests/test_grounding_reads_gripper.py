@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 import torch
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding
 from trivla_drake.nn.panda_gripper import MAX_GRIPPER_WIDTH, gripper_closure, holding_block
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
-from trivla_drake.train.trainer import apply_ablations
+from trivla_drake.train.model_setup import apply_ablations
 
 BLOCK_WIDTH = 0.045  # the suite's blocks [m]
 
@@ -116,13 +117,14 @@ def test_reading_the_gripper_without_grounding_or_a_held_only_bind_without_it_is
     config = make_config("tiny")
     with pytest.raises(ValueError, match="policy.grounding_reads_gripper.*policy.instruction_grounding"):
         dataclasses.replace(config, policy=dataclasses.replace(config.policy, grounding_reads_gripper=True))
-    base = {"stage": "policy", "data": str(tmp_path), "out": str(tmp_path / "o")}
-    for options in ({}, {"stage": "video"}):
-        with pytest.raises(ValueError, match=r"grounding_reads_gripper \(--grounding-reads-gripper\)"):
-            TrainConfig(**{**base, "grounding_reads_gripper": True, **options}).resolved().validate()
-    held_only = {**base, "grounding_weight": 1.0, "grounding_phase": "bind", "init": str(tmp_path),
-                 "keep_grounding": True, "grounding_reads_gripper": True, "bind_held_only": True}
-    TrainConfig(**held_only).resolved().validate()
-    for missing in ("keep_grounding", "grounding_reads_gripper"):
-        with pytest.raises(ValueError, match=r"bind_held_only \(--bind-held-only\).*--grounding-reads-gripper"):
-            TrainConfig(**{**held_only, missing: False}).resolved().validate()
+    base = TrainConfig(stage="policy", data=str(tmp_path), out=str(tmp_path / "o"))
+    for stage in ("policy", "video"):
+        with pytest.raises(ValueError, match=r"policy.grounding.reads_gripper"):
+            with_flags(base, {"stage": stage, "policy.grounding.reads_gripper": True}).resolved().validate()
+    held_only = with_flags(base, {"policy.grounding.weight": 1.0, "policy.grounding.phase": "bind", "init": str(tmp_path),
+                                  "policy.grounding.keep": True, "policy.grounding.reads_gripper": True,
+                                  "policy.grounding.bind_held_only": True})
+    held_only.resolved().validate()
+    for missing in ("keep", "reads_gripper"):
+        with pytest.raises(ValueError, match=r"policy.grounding.bind_held_only .*policy.grounding.reads_gripper"):
+            with_flags(held_only, {f"policy.grounding.{missing}": False}).resolved().validate()

@@ -138,8 +138,7 @@ def test_the_refit_trains_the_grounding_readout_alone_and_lowers_its_loss():
         views = rng.integers(0, 255, size=(2, n, model.image_size, model.image_size, 3), dtype=np.uint8)
         rendered = SimpleNamespace(  # what scene_samples reads of a GroundingScenes
             folder="memory", static=views[0], wrist=views[1], instructions=[words] * n, tasks=["lift_block"] * n,
-            state=state, subgoal_position=(np.array([0.5, 0.0, 0.03]) + 0.05 * rng.normal(size=(n, 3))).astype(np.float32),
-            subgoal_yaw=np.zeros((n, 2), dtype=np.float32))
+            state=state, subgoal_position=(np.array([0.5, 0.0, 0.03]) + 0.05 * rng.normal(size=(n, 3))).astype(np.float32))
         return refit.scene_samples(model, rendered, progress=False)
 
     scenes, frames = samples(24, "lift the red block"), samples(16, "put the blue block in the bowl please")
@@ -168,8 +167,8 @@ def _scene_samples(model, n: int = 24):
     position = np.array([0.5, 0.0, 0.03]) + 0.03 * rng.normal(size=(n, 3))
     return refit.scene_samples(model, SimpleNamespace(
         folder="memory", static=views[0], wrist=views[1], instructions=["lift the red block"] * n,
-        tasks=["lift_block"] * n, state=state, subgoal_position=position.astype(np.float32),
-        subgoal_yaw=np.zeros((n, 2), np.float32)), progress=False)
+        tasks=["lift_block"] * n, state=state, subgoal_position=position.astype(np.float32)),
+        progress=False)
 
 
 def test_the_groundings_outputs_are_the_goal_token_the_dit_reads_and_the_subgoal():
@@ -189,7 +188,7 @@ def test_saved_samples_load_back_and_a_broken_file_is_named(tmp_path):
     refit.save_samples(scenes, tmp_path / "q" / "scenes.pt")
     assert [p.name for p in (tmp_path / "q").iterdir()] == ["scenes.pt"]  # no partial file left
     loaded = refit.load_samples(tmp_path / "q" / "scenes.pt")
-    for name in ("q_vl", "q_vl_mask", "state", "subgoal_position", "subgoal_yaw"):
+    for name in ("q_vl", "q_vl_mask", "state", "subgoal_position"):
         assert torch.equal(getattr(loaded, name), getattr(scenes, name)), name
     assert loaded.tasks == scenes.tasks
     data = (tmp_path / "q" / "scenes.pt").read_bytes()

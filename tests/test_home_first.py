@@ -1,4 +1,4 @@
-"""`--home-first` (eval/home_first.py): at the start of every task that does not start the episode the hand first
+"""The policy wrapper "home_first" (eval/home_first.py; `evaluate --set 'policy_wrappers=[{name: home_first}]'`): at the start of every task that does not start the episode the hand first
 goes back to the start posture's pose, scripted, and once the arm has settled there the learned policy acts. The
 homing reaches the pose within the action bounds, rises before it moves sideways, opens the hand unless it holds a
 block, stops at its step budget, and runs again at every reset; bad settings are refused by name."""
@@ -18,7 +18,10 @@ from trivla_drake.eval.home_first import (
     home_tcp_pose,
     homing_actions,
 )
+from trivla_drake.eval.plugin_config import PluginConfig
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW, apply_action, exp_so3
+
+HOME_FIRST = PluginConfig("home_first")
 
 
 def _away(home, dx=0.2, dy=-0.15, dz=-0.25, turn=(0.0, 0.0, 1.2)):
@@ -192,18 +195,18 @@ def test_bad_settings_are_refused_by_name():
         HomeFirst(Holding(), max_steps=0)
     with pytest.raises(ValueError, match="oracle"):
         HomeFirst(OraclePolicy())
-    with pytest.raises(ValueError, match="--home-first"):
-        EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, policy_wrappers=["home_first"]).validate()
+    with pytest.raises(ValueError, match="policy_wrappers: home_first applies to learned policies"):
+        EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, policy_wrappers=[HOME_FIRST]).validate()
 
 
-def test_the_cli_flag_wraps_the_policy_and_refuses_the_oracle(capsys):
+def test_the_config_field_wraps_the_policy_and_refuses_the_oracle(capsys):
     from trivla_drake.cli import main
     from trivla_drake.eval.evaluate import EvalConfig, _policy
 
-    assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block", "--episodes", "1", "--home-first",
-                 "--no-progress"]) == 2
-    assert "--home-first applies to learned policies" in capsys.readouterr().err
-    config = EvalConfig(policy="random", tasks=["lift_block"], episodes=1, policy_wrappers=["home_first"])
+    assert main(["evaluate", "--policy", "oracle", "--tasks", "lift_block", "--episodes", "1", "--set",
+                 "policy_wrappers=[{name: home_first}]", "--no-progress"]) == 2
+    assert "home_first applies to learned policies" in capsys.readouterr().err
+    config = EvalConfig(policy="random", tasks=["lift_block"], episodes=1, policy_wrappers=[HOME_FIRST])
     wrapped = _policy(*config.policy_key())
     assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
     assert not isinstance(_policy("random"), HomeFirst)
@@ -216,8 +219,10 @@ def test_home_first_is_a_registered_policy_wrapper_and_unknown_wrappers_are_name
     from trivla_drake.eval.policy_wrappers import POLICY_WRAPPERS, wrap_policy
 
     assert "home_first" in POLICY_WRAPPERS.names()
-    wrapped = wrap_policy(load_policy("random"), ["home_first"])
+    wrapped = wrap_policy(load_policy("random"), [HOME_FIRST])
     assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
     assert wrap_policy(wrapped, []) is wrapped
-    with pytest.raises(ValueError, match=r"unknown policy wrapper 'home_frist'; registered: home_first"):
-        EvalConfig(policy="random", tasks=["lift_block"], episodes=1, policy_wrappers=["home_frist"]).validate()
+    with pytest.raises(ValueError, match=r"policy_wrappers\[0\].name: unknown policy wrapper 'home_frist'; registered: "
+                                         r"home_first"):
+        EvalConfig(policy="random", tasks=["lift_block"], episodes=1,
+                   policy_wrappers=[PluginConfig("home_frist")]).validate()

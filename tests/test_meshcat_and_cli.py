@@ -74,7 +74,7 @@ def test_sim_json_reports_timing():
 
 def test_cli_bad_scenario_exits_with_a_clear_message(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "trivla_drake.cli", "sim", "--scenario", str(tmp_path / "missing.yaml")],
+        [sys.executable, "-m", "trivla_drake.cli", "sim", "--set", f"scenario={tmp_path / 'missing.yaml'}"],
         capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 2

@@ -43,7 +43,7 @@ def two_follows(saved, tmp_path_factory):
 def test_the_soup_is_the_mean_of_system_1_and_keeps_the_frozen_systems(two_follows, saved, tmp_path, capsys):
     (a, b), folders = two_follows
     out = tmp_path / "soup"
-    assert main(["soup", *folders, "--out", str(out), "--dtype", "float32"]) == 0
+    assert main(["soup", *folders, "--out", str(out), "--set", "dtype=float32"]) == 0
     assert "the average of 2 models" in capsys.readouterr().out
     soup = load_checkpoint(str(out))
     parameters_a, parameters_b = dict(a.named_parameters()), dict(b.named_parameters())
@@ -64,7 +64,7 @@ def test_the_soup_is_the_mean_of_system_1_and_keeps_the_frozen_systems(two_follo
 def test_a_soup_of_one_model_twice_is_that_model(saved, tmp_path):
     model, folder = saved
     out = tmp_path / "same"
-    assert main(["soup", folder, folder, "--out", str(out), "--dtype", "float32"]) == 0
+    assert main(["soup", folder, folder, "--out", str(out), "--set", "dtype=float32"]) == 0
     obs = example_observation()
     np.testing.assert_array_equal(load_checkpoint(str(out)).eval().predict_action_chunk(obs, seed=4),
                                   model.predict_action_chunk(obs, seed=4))
@@ -81,7 +81,7 @@ def test_an_export_in_float16_soups_with_the_float32_runs_followed_from_it(two_f
     save_checkpoint(follow, str(tmp_path / "follow"))
     assert json.loads((tmp_path / "follow" / "config.json").read_text())["weights_dtype"] == "float32"
     out = tmp_path / "soup"
-    assert main(["soup", str(exported), str(tmp_path / "follow"), "--out", str(out), "--dtype", "float32"]) == 0
+    assert main(["soup", str(exported), str(tmp_path / "follow"), "--out", str(out), "--set", "dtype=float32"]) == 0
     started, followed = dict(start.named_parameters()), dict(follow.named_parameters())
     for name, parameter in load_checkpoint(str(out)).named_parameters():
         torch.testing.assert_close(parameter, (started[name] + followed[name]) / 2, rtol=0, atol=1e-6)

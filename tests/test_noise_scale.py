@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from trivla_drake.eval.evaluate import EvalConfig
+from trivla_drake.eval.inference_config import InferenceConfig
 from trivla_drake.eval.paper_tables import TablesConfig, _stored
 from trivla_drake.eval.policies import load_policy
 from trivla_drake.nn import TriVLA, load_checkpoint, make_config, save_checkpoint
@@ -42,8 +43,8 @@ def test_bad_scales_are_named(model, bad):
     with pytest.raises(ValueError, match="noise_scale"):
         model.set_initial_noise_scale(bad)
     assert model.initial_noise_scale == 1.0
-    with pytest.raises(ValueError, match="--noise-scale"):
-        EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1, noise_scale=bad).validate()
+    with pytest.raises(ValueError, match="inference.noise_scale"):
+        EvalConfig(policy="trivla", tasks=["lift_block"], episodes=1, inference=InferenceConfig(noise_scale=bad)).validate()
 
 
 def test_the_scale_is_an_inference_setting_not_saved_with_the_weights(model, tmp_path):
@@ -62,10 +63,10 @@ def test_noise_scale_with_a_policy_that_does_not_sample_is_an_error(capsys):
     with pytest.raises(ValueError, match="TriVLA checkpoints only"):
         load_policy("oracle", noise_scale=0.0)
     assert main(["evaluate", "--policy", "random", "--tasks", "lift_block", "--episodes", "1",
-                 "--noise-scale", "0", "--no-progress"]) == 2
-    assert "--noise-scale" in capsys.readouterr().err
-    assert main(["demo", "--policy", "oracle", "--noise-scale", "0"]) == 2
-    assert "--noise-scale" in capsys.readouterr().err
+                 "--set", "inference.noise_scale=0", "--no-progress"]) == 2
+    assert "inference.noise_scale" in capsys.readouterr().err
+    assert main(["demo", "--policy", "oracle", "--set", "inference.noise_scale=0"]) == 2
+    assert "inference.* and --latency go with --policy trivla" in capsys.readouterr().err
 
 
 def test_tables_store_results_per_noise_scale_and_thread_count(tmp_path):
@@ -80,11 +81,11 @@ def test_tables_store_results_per_noise_scale_and_thread_count(tmp_path):
         return lambda: calls.append(value) or {"value": value}
 
     default = TablesConfig(results_dir=str(tmp_path / "stored"))
-    zero = TablesConfig(results_dir=str(tmp_path / "stored"), noise_scale=0)
+    zero = TablesConfig(results_dir=str(tmp_path / "stored"), inference=InferenceConfig(noise_scale=0))
     assert _stored(default, str(checkpoint), settings, compute("default")) == {"value": "default"}
     assert _stored(zero, str(checkpoint), settings, compute("zero")) == {"value": "zero"}
     assert _stored(default, str(checkpoint), settings, compute("again")) == {"value": "default"}
-    zero.noise_scale = 0.0  # the same setting, written as a float
+    zero.inference.noise_scale = 0.0  # the same setting, written as a float
     assert _stored(zero, str(checkpoint), settings, compute("zero again")) == {"value": "zero"}
     two_threads = TablesConfig(results_dir=str(tmp_path / "stored"), threads=2)
     assert _stored(two_threads, str(checkpoint), settings, compute("threads")) == {"value": "threads"}

@@ -31,9 +31,9 @@ def _tables(checkpoints, out, *extra):
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         code = main(["tables", "--full", str(checkpoints["full"]), "--system1", str(checkpoints["system1"]),
-                     "--out", str(out), "--tasks", "turn_on_light", "--episodes", "1", "--seeds", "0",
-                     "--chains", "1", "--latency-episodes", "1", "--max-steps", "6",
-                     "--latency-tasks", "turn_on_light", "--json", *extra])
+                     "--out", str(out), "--set", "tasks=[turn_on_light]", "--episodes", "1", "--seeds", "0",
+                     "--set", "chains=1", "--set", "latency_episodes=1", "--set", "max_steps=6",
+                     "--set", "latency_tasks=[turn_on_light]", "--json", *extra])
     assert code == 0
     return json.loads(stdout.getvalue())
 
@@ -44,15 +44,24 @@ def first_run(checkpoints, tmp_path_factory):
     return out, _tables(checkpoints, out)
 
 
-def test_tables_from_untrained_checkpoints(first_run):
+def test_tables_from_untrained_checkpoints(first_run, checkpoints):
     out, report = first_run
     assert report["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0  # untrained: no success
     assert [row["systems"] for row in report["ablation"]] == ["1", "1+2+3"]
     assert report["ablation"][0]["params_millions"] < report["ablation"][1]["params_millions"]
     assert set(report["latency"]) == {"latency off", "latency measured"}
-    for name in ("report.md", "report.json", "per_task_success.png", "ablation.png"):
+    for name in ("report.md", "report.json", "per_task_success.png", "ablation.png", "tables_config.yaml"):
         assert (out / name).stat().st_size > 0, name
     assert "Sub-system ablation" in (out / "report.md").read_text()
+    # The report keeps the config that made it: loaded back, it is the report's own, and the stage kind sees it done.
+    from trivla_drake.config_io import load_config
+    from trivla_drake.eval.stage_kinds import tables_is_done
+
+    stored = load_config(TablesConfig, out / "tables_config.yaml")
+    assert stored.checkpoints == {"full": str(checkpoints["full"]), "system1": str(checkpoints["system1"])}
+    assert (stored.tasks, stored.chains, stored.max_steps) == (["turn_on_light"], 1, 6)
+    assert tables_is_done(stored) and not tables_is_done(load_config(TablesConfig, out / "tables_config.yaml",
+                                                                     ["chains=2"]))
 
 
 def test_bad_roles_and_paths_are_named(tmp_path):
@@ -83,27 +92,28 @@ def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints,
     assert first["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0
     assert second["main"]["tasks"]["turn_on_light"]["success_rate"] == 1.0  # reused, not recomputed
     assert sorted((out / "evaluations").glob("*.json")) == stored
-    third = _tables(checkpoints, out, "--no-reuse")
+    third = _tables(checkpoints, out, "--set", "reuse=false")
     assert third["main"]["tasks"]["turn_on_light"]["success_rate"] == 0.0
     elsewhere = out.parent / (out.name + "_elsewhere")
-    fourth = _tables(checkpoints, elsewhere, "--evaluations", str(out / "evaluations"))
+    fourth = _tables(checkpoints, elsewhere, "--set", f"results_dir={out / 'evaluations'}")
     assert fourth["main"]["tasks"]["turn_on_light"]["success_rate"] == 1.0  # another report's store, reused
     assert not (elsewhere / "evaluations").exists() and (elsewhere / "report.md").is_file()
 
 
-def test_evaluations_folder_and_no_reuse_together_are_refused(checkpoints, tmp_path, capsys):
+def test_results_dir_without_reuse_is_refused(checkpoints, tmp_path, capsys):
     from trivla_drake.cli import main
 
     assert main(["tables", "--full", str(checkpoints["full"]), "--out", str(tmp_path / "t"),
-                 "--evaluations", str(tmp_path / "e"), "--no-reuse"]) == 2
-    assert "--evaluations" in capsys.readouterr().err and not (tmp_path / "t").exists()
+                 "--set", f"results_dir={tmp_path / 'e'}", "--set", "reuse=false"]) == 2
+    assert "results_dir names a folder of evaluations to reuse" in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()
 
 
 def test_unknown_latency_task_is_named_before_any_work(checkpoints, tmp_path, capsys):
     from trivla_drake.cli import main
 
     assert main(["tables", "--full", str(checkpoints["full"]), "--out", str(tmp_path / "t"),
-                 "--latency-tasks", "lift_block,juggle"]) == 2
+                 "--set", "latency_tasks=[lift_block, juggle]"]) == 2
     assert "unknown task 'juggle'" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from trivla_drake.train import grounding_refit as refit
+from trivla_drake.train.export_job import holds_export_of
 from trivla_drake.train.refit_job import RefitConfig, check_refit_config, report_path, run_refit
 
 
@@ -56,7 +57,9 @@ def test_the_job_refits_the_grounding_readout_alone_and_reports_its_errors_befor
         assert set(report["median_z_error_cm"][when]) == {"test_scenes"}
     assert errors["before"] != errors["after"]
     assert [step for step, _ in report["loss_ema"]] == [3] and math.isfinite(report["loss_ema"][0][1])
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "model.safetensors"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "model.safetensors",
+                                                                    "refit_config.yaml"]
+    assert holds_export_of(config.out, config, "refit_config.yaml")  # the job's config beside its model
     # The saved model differs from the input only in the read-out (every weight rounded to float16).
     before = load_checkpoint(config.checkpoint).state_dict()
     after = load_checkpoint(config.out).state_dict()

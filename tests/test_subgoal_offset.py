@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.config import make_config
 from trivla_drake.nn.policy import SubgoalOffsetEncoder
@@ -92,7 +93,7 @@ def test_an_offset_without_grounding_or_tcp_features_is_refused_naming_the_field
         dataclasses.replace(config, policy=dataclasses.replace(
             config.policy, instruction_grounding=True, tcp_features=False, subgoal_offset=True))
     data = str(tmp_path)
-    for options in ({}, {"stage": "video"}):
-        settings = {"stage": "policy", "data": data, "out": str(tmp_path / "o"), "subgoal_offset": True, **options}
-        with pytest.raises(ValueError, match=r"subgoal_offset \(--subgoal-offset\)"):
-            TrainConfig(**settings).resolved().validate()
+    for stage in ("policy", "video"):
+        settings = TrainConfig(stage=stage, data=data, out=str(tmp_path / "o"))
+        with pytest.raises(ValueError, match=r"policy.subgoal_offset"):
+            with_flags(settings, {"policy.subgoal_offset": True}).resolved().validate()

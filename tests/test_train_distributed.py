@@ -26,8 +26,8 @@ def test_two_processes_end_with_identical_weights(tmp_path):
         sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc_per_node", "2",
         "--master_addr", "127.0.0.1", "--master_port", str(_free_port()),
         "-m", "trivla_drake.train.cli_commands", "train", "--stage", "policy", "--data", data,
-        "--out", str(out), "--preset", "tiny", "--steps", "3", "--batch-size", "2", "--checkpoint-every", "2",
-        "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--no-progress", "--json",
+        "--out", str(out), "--preset", "tiny", "--steps", "3", "--set", "batch_size=2", "--set", "checkpoint_every=2",
+        "--set", f"cache_dir={tmp_path / 'cache'}", "--threads", "1", "--no-progress", "--json",
     ]
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=280)
     assert result.returncode == 0, result.stderr[-3000:]

@@ -8,7 +8,9 @@ import re
 
 import numpy as np
 import pytest
+import yaml
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_stats
 from trivla_drake.nn import load_checkpoint
 from trivla_drake.train import TrainConfig, train
@@ -84,9 +86,8 @@ def test_union_samples_run_through_each_part_in_order():
 
 def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(folders):
     out = folders["root"] / "run"
-    summary = train(TrainConfig(stage="policy", data=folders["a"], extra_data=(folders["b"],), out=str(out),
-                                preset="tiny", steps=3, batch_size=4, cache_dir=folders["cache"], progress=False,
-                                feature_stride=2))
+    summary = train(with_flags(TrainConfig(stage="policy", data=folders["a"], extra_data=[folders["b"]], out=str(out),
+                                           preset="tiny", steps=3, batch_size=4, cache_dir=folders["cache"], progress=False), {"features.stride": 2}))
     assert summary["episodes"] == 5 and summary["repeated_episodes_dropped"] == 3
     assert summary["episodes_per_dataset"] == {folders["a"]: 3, folders["b"]: 2}
     assert summary["samples"] == 5 * 10  # every second frame of 5 episodes of 20 frames
@@ -98,22 +99,23 @@ def test_policy_stage_trains_on_both_folders_with_their_joint_normalisation(fold
     # ... which --data's statistics alone would not give (b's own equal the union here: its 0-2 are a's).
     assert not np.allclose(model.normalization.state_mean, a.stats["observation.state"]["mean"], atol=1e-4)
     assert np.allclose(model.normalization.action_max, both["action"]["max"], atol=1e-6)
-    saved = json.loads((out / "final" / "train_config.json").read_text())
-    assert saved["extra_data"] == [folders["b"]]
+    saved = yaml.safe_load((out / "final" / "train_config.yaml").read_text())
+    assert saved["extra_data"] == [folders["b"]] and saved["features"]["stride"] == 2
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--stage", "video", "--extra-data", "B"], "extra_data (--extra-data) applies to the policy stage only"),
-    (["--extra-data", "C"], "is recorded at 18.0 fps"),
-    (["--extra-data", "A"], "which is already --data: each folder once"),
-    (["--extra-data", "C", "--extra-data", "C"], "which is already given: each folder once"),
-    (["--extra-data", "POSED"], "has ['observation.tcp_pose'] that --data lacks"),
+    (["--stage", "video", "--set", "extra_data=[B]"], "extra_data applies to the policy stage only"),
+    (["--set", "extra_data=[C]"], "is recorded at 18.0 fps"),
+    (["--set", "extra_data=[A]"], "which is already data: each folder once"),
+    (["--set", "extra_data=[C, C]"], "which is already given: each folder once"),
+    (["--set", "extra_data=[POSED]"], "has ['observation.tcp_pose'] that --data lacks"),
 ])
 def test_folders_that_cannot_be_joined_are_refused_before_training(folders, capsys, tmp_path, extra, message):
     named = {"A": folders["a"], "B": folders["b"], "C": folders["c"], "POSED": folders["posed"]}
-    extra = [named.get(v, v) for v in extra]
+    for name, folder in named.items():
+        extra = [word.replace(name, folder) if word.startswith("extra_data=") else word for word in extra]
     args = ["train", "--stage", "policy", "--data", folders["a"], "--out", str(tmp_path / "out"), "--steps", "2",
-            "--preset", "tiny", "--cache-dir", folders["cache"], "--no-progress", *extra]
+            "--preset", "tiny", "--set", f"cache_dir={folders['cache']}", "--no-progress", *extra]
     assert main(args) == 2
     err = capsys.readouterr().err
     error = err.strip().splitlines()[-1]  # after any note
@@ -147,8 +149,9 @@ def _renamed_wrist_camera(features):
 ])
 def test_an_extra_folder_of_another_space_or_cameras_is_refused_naming_it(folders, capsys, tmp_path, edit, message):
     extra = _edited_copy(folders["b"], tmp_path / "edited", edit)
-    args = ["train", "--stage", "policy", "--data", folders["a"], "--extra-data", extra, "--out",
-            str(tmp_path / "out"), "--steps", "2", "--preset", "tiny", "--cache-dir", folders["cache"], "--no-progress"]
+    args = ["train", "--stage", "policy", "--data", folders["a"], "--set", f"extra_data=[{extra}]", "--out",
+            str(tmp_path / "out"), "--steps", "2", "--preset", "tiny", "--set", f"cache_dir={folders['cache']}",
+            "--no-progress"]
     assert main(args) == 2
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert message in error and extra in error, error
@@ -158,18 +161,18 @@ def test_an_extra_folder_of_another_space_or_cameras_is_refused_naming_it(folder
 
 def test_a_grounded_run_refuses_an_extra_folder_without_tcp_poses(folders, tmp_path):
     posed = write_synthetic_dataset(tmp_path / "posed", episodes=2, length=20, image_size=16, tcp_pose=True)
-    common = dict(stage="policy", preset="tiny", steps=1, batch_size=4, cache_dir=folders["cache"], progress=False,
-                  feature_stride=2, grounding_weight=0.5)
+    common = dict(stage="policy", preset="tiny", steps=1, batch_size=4, cache_dir=folders["cache"], progress=False)
     missing = "'observation.tcp_pose', which dataset " + re.escape(folders["b"]) + " does not have"
     with pytest.raises(ValueError, match=missing):
-        train(TrainConfig(data=posed, extra_data=(folders["b"],), out=str(tmp_path / "out"), **common))
+        train(with_flags(TrainConfig(data=posed, extra_data=[folders["b"]], out=str(tmp_path / "out"), **common),
+                         {"features.stride": 2, "policy.grounding.weight": 0.5}))
     assert not (tmp_path / "out" / "final").exists()
 
 
 def test_an_extra_folder_that_adds_nothing_new_is_refused_before_any_caching(folders, tmp_path):
     """--data b --extra-data a: all of a's episodes are b's first three (a copy given by mistake)."""
     cache = tmp_path / "cache"
-    with pytest.raises(ValueError, match=r"extra_data \(--extra-data\): dataset .*/a adds no episode"):
+    with pytest.raises(ValueError, match=r"extra_data: dataset .*/a adds no episode"):
         train(TrainConfig(stage="policy", data=folders["b"], extra_data=(folders["a"],), out=str(tmp_path / "out"),
                           preset="tiny", steps=1, batch_size=4, cache_dir=str(cache), progress=False))
     assert not list(cache.rglob("*.safetensors"))
@@ -177,11 +180,12 @@ def test_an_extra_folder_that_adds_nothing_new_is_refused_before_any_caching(fol
 
 def test_a_resume_on_other_folders_is_refused_naming_them(folders, tmp_path):
     common = dict(stage="policy", data=folders["a"], out=str(tmp_path / "run"), preset="tiny", batch_size=4,
-                  cache_dir=folders["cache"], progress=False, feature_stride=2, checkpoint_every=2)
-    train(TrainConfig(steps=2, **common))
-    with pytest.raises(ValueError, match=r"data \(--data\) / extra_data \(--extra-data\) give other statistics"):
-        train(TrainConfig(steps=4, resume=True, extra_data=(folders["b"],), **common))
-    resumed = train(TrainConfig(steps=4, resume=True, **common))  # the same folder resumes
+                  cache_dir=folders["cache"], progress=False, checkpoint_every=2)
+    stride = {"features.stride": 2}
+    train(with_flags(TrainConfig(steps=2, **common), stride))
+    with pytest.raises(ValueError, match=r"data / extra_data give other statistics"):
+        train(with_flags(TrainConfig(steps=4, resume=True, extra_data=[folders["b"]], **common), stride))
+    resumed = train(with_flags(TrainConfig(steps=4, resume=True, **common), stride))  # the same folder resumes
     assert (resumed["resumed_from_step"], resumed["steps"]) == (2, 4)
 
 

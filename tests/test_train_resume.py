@@ -8,6 +8,7 @@ import json
 import pytest
 import torch
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train import checkpoints as ckpt
 from trivla_drake.train.synthetic import write_synthetic_dataset
@@ -26,11 +27,17 @@ class Killed(Exception):
     pass
 
 
+# Each stage's own settings (a run of another stage refuses them).
+STAGE_SETTINGS = {"video": {"video.future_stride": 2}, "vlm": {"vlm.vqa_scenes": 3, "vlm.vqa_questions_per_scene": 3},
+                  "policy": {}}
+
+
 def _config(stage, out, data, **kw):
-    return TrainConfig(stage=stage, out=str(out), data=None if stage == "vlm" else data["data"], preset="tiny",
-                       steps=6, batch_size=2, checkpoint_every=2, cache_dir=data["cache"], progress=False,
-                       warmup_steps=1, lr=1e-3, future_stride=2, vqa_scenes=3, vqa_questions_per_scene=3,
-                       log_every=1, **kw)
+    settings = {**dict(steps=6, batch_size=2, checkpoint_every=2, cache_dir=data["cache"], progress=False, lr=1e-3,
+                       log_every=1), **kw}
+    config = TrainConfig(stage=stage, out=str(out), data=None if stage == "vlm" else data["data"], preset="tiny",
+                         **settings)
+    return with_flags(config, {"optimizer.warmup_steps": 1, **STAGE_SETTINGS[stage]})
 
 
 def _log(run):
@@ -84,11 +91,9 @@ def test_existing_runs_need_resume_and_the_same_settings(data, tmp_path):
     assert [step for step, _ in ckpt.list_checkpoints(tmp_path / "run")] == [6]  # older ones pruned
     with pytest.raises(ValueError, match="already holds a training run"):
         train(_config("policy", tmp_path / "run", data))
-    with pytest.raises(ValueError, match=r"lr \(--lr\) was 0.001"):
-        train(_config("policy", tmp_path / "run", data, resume=True).__class__(
-            **{**_config("policy", tmp_path / "run", data, resume=True).to_dict(), "lr": 5e-4}))
-    more = train(_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).__class__(
-        **{**_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1).to_dict(), "steps": 8}))
+    with pytest.raises(ValueError, match=r"cannot resume: lr was 0.001"):
+        train(_config("policy", tmp_path / "run", data, resume=True, lr=5e-4))
+    more = train(_config("policy", tmp_path / "run", data, resume=True, keep_checkpoints=1, steps=8))
     assert more["resumed_from_step"] == 6 and more["steps"] == 8
     assert ckpt.read_step(tmp_path / "run" / "final") == 8
 

@@ -12,10 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.data.lerobot import LeRobotReader
 from trivla_drake.nn import TriVLA, load_checkpoint, make_config, save_checkpoint
 from trivla_drake.train import TrainConfig, train
+from trivla_drake.train.config import OptimizerConfig
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 
@@ -25,10 +28,11 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("stages")
     data = write_synthetic_dataset(root / "data", episodes=3, length=24)
     common = dict(preset="tiny", batch_size=4, checkpoint_every=10, cache_dir=str(root / "cache"), progress=False,
-                  warmup_steps=2, lr=1e-3, log_every=1)
-    video = train(TrainConfig(stage="video", data=data, out=str(root / "video"), steps=20, future_stride=3, **common))
-    vlm = train(TrainConfig(stage="vlm", out=str(root / "vlm"), init=video["final_checkpoint"], steps=20,
-                            vqa_scenes=10, vqa_questions_per_scene=4, **common))
+                  optimizer=OptimizerConfig(warmup_steps=2), lr=1e-3, log_every=1)
+    video = train(with_flags(TrainConfig(stage="video", data=data, out=str(root / "video"), steps=20, **common),
+                             {"video.future_stride": 3}))
+    vlm = train(with_flags(TrainConfig(stage="vlm", out=str(root / "vlm"), init=video["final_checkpoint"], steps=20,
+                                       **common), {"vlm.vqa_scenes": 10, "vlm.vqa_questions_per_scene": 4}))
     policy = train(TrainConfig(stage="policy", data=data, out=str(root / "policy"), init=vlm["final_checkpoint"],
                                steps=20, **common))
     return {"root": root, "data": data, "common": common, "video": video, "vlm": vlm, "policy": policy}
@@ -84,7 +88,7 @@ def test_policy_stage_trains_system1_with_the_dataset_normalisation(runs):
     assert norm.state_mean == pytest.approx(stats["observation.state"]["mean"])
     assert norm.action_min == pytest.approx(stats["action"]["min"])
     assert norm.action_max == pytest.approx(stats["action"]["max"])
-    meta = json.loads((runs["root"] / "policy" / "final" / "train_config.json").read_text())
+    meta = yaml.safe_load((runs["root"] / "policy" / "final" / "train_config.yaml").read_text())
     assert meta["stage"] == "policy" and meta["init"] == runs["vlm"]["final_checkpoint"]
 
 
@@ -170,7 +174,7 @@ def test_every_stage_writes_its_loss_curve(runs, tmp_path):
 
 
 def test_policy_stage_sets_the_tcp_features_of_an_init_checkpoint(runs, tmp_path):
-    from trivla_drake.train.trainer import apply_ablations
+    from trivla_drake.train.model_setup import apply_ablations
 
     vlm = load_checkpoint(runs["vlm"]["final_checkpoint"])
     assert vlm.config.policy.tcp_features  # the default of every preset and of `train`
@@ -189,8 +193,8 @@ def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
     (an --init without one), trains it, reloads it from the checkpoint, keeps System 2 as it was,
     and is refused where there is no System 1 training or no System 2."""
     init = runs["policy"]["final_checkpoint"]
-    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "pos"), init=init, steps=3,
-                                vl_position_embedding=True, **runs["common"]))
+    summary = train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "pos"), init=init,
+                                           steps=3, **runs["common"]), {"policy.vl_position_embedding": True}))
     before, after = load_checkpoint(init), load_checkpoint(summary["final_checkpoint"])
     assert before.policy.vl_position is None and not before.config.policy.vl_position_embedding
     assert after.config.policy.vl_position_embedding
@@ -204,11 +208,12 @@ def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
     continued = load_checkpoint(again["final_checkpoint"]).policy.vl_position
     assert continued.shape[0] == fixed
     assert not torch.equal(continued, after.policy.vl_position)  # trained with the rest of System 1
-    with pytest.raises(ValueError, match="vl_position_embedding.*policy stage, not the vlm stage"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), vl_position_embedding=True).resolved().validate()
-    with pytest.raises(ValueError, match="vl_position_embedding.*needs System 2"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "n"), use_system2=False,
-                    vl_position_embedding=True).resolved().validate()
+    with pytest.raises(ValueError, match="policy.vl_position_embedding .* setting of the policy stage; this run is the vlm stage"):
+        with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")),
+                   {"policy.vl_position_embedding": True}).resolved().validate()
+    with pytest.raises(ValueError, match="policy.vl_position_embedding .*needs System 2"):
+        with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "n"), use_system2=False),
+                   {"policy.vl_position_embedding": True}).resolved().validate()
 
 
 def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp_path):
@@ -217,8 +222,8 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     refused without a weight, without tcp poses, outside the policy stage and without System 2."""
     data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24, tcp_pose=True)
     init = runs["policy"]["final_checkpoint"]
-    summary = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "g"), init=init, steps=3,
-                                grounding_weight=0.5, **runs["common"]))
+    summary = train(with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "g"), init=init, steps=3,
+                                           **runs["common"]), {"policy.grounding.weight": 0.5}))
     before, after = load_checkpoint(init), load_checkpoint(summary["final_checkpoint"])
     assert before.policy.grounding is None and after.config.policy.instruction_grounding
     fresh = TriVLA(after.config).policy.grounding.state_dict()
@@ -234,22 +239,25 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
     base = next(g["lr"] for g in groups if g["lr_scale"] == 1.0)
     assert all(g["lr"] == pytest.approx(base * g["lr_scale"]) for g in groups)
     grounded = summary["final_checkpoint"]
-    with pytest.raises(ValueError, match="grounding_weight.*> 0"):
+    with pytest.raises(ValueError, match="policy.grounding.weight > 0"):
         train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), init=grounded, steps=1,
                           **runs["common"]))
     with pytest.raises(ValueError, match="observation.tcp_pose"):
-        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "t"), init=grounded, steps=1,
-                          grounding_weight=1.0, **runs["common"]))
+        train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "t"), init=grounded,
+                                     steps=1, **runs["common"]), {"policy.grounding.weight": 1.0}))
     assert not (tmp_path / "t" / "final").exists()
-    with pytest.raises(ValueError, match="grounding_weight.*policy stage, not the vlm stage"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), grounding_weight=1.0).resolved().validate()
-    with pytest.raises(ValueError, match="grounding_weight.*needs System 2"):
-        TrainConfig(stage="policy", data=data, out=str(tmp_path / "n"), use_system2=False,
-                    grounding_weight=1.0).resolved().validate()
-    with pytest.raises(ValueError, match="grounding_lr_scale \\(--grounding-lr-scale\\) must be a finite number > 0"):
-        TrainConfig(stage="policy", data=data, out=str(tmp_path / "s"), grounding_lr_scale=0.0).resolved().validate()
-    with pytest.raises(ValueError, match="grounding_weight \\(--grounding-weight\\) must be a finite number >= 0"):
-        TrainConfig(stage="policy", data=data, out=str(tmp_path / "m"), grounding_weight=-1.0).resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.weight .* setting of the policy stage; this run is the vlm stage"):
+        with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")),
+                   {"policy.grounding.weight": 1.0}).resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.weight .*needs System 2"):
+        with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "n"), use_system2=False),
+                   {"policy.grounding.weight": 1.0}).resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.lr_scale must be a finite number > 0"):
+        with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "s")),
+                   {"policy.grounding.lr_scale": 0.0}).resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.weight must be a finite number >= 0"):
+        with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "m")),
+                   {"policy.grounding.weight": -1.0}).resolved().validate()
 
 
 def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
@@ -259,44 +267,48 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     bound grounding, and either phase without a grounding weight, are refused naming the field."""
     data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24, tcp_pose=True)
     init = runs["policy"]["final_checkpoint"]
-    bound = train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "bind"), init=init, steps=3,
-                              grounding_weight=1.0, grounding_phase="bind", **runs["common"]))
+    bound = train(with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "bind"), init=init, steps=3,
+                                         **runs["common"]), {"policy.grounding.weight": 1.0,
+                                                             "policy.grounding.phase": "bind"}))
     assert bound["samples"] == 3 * 12  # the synthetic gripper first changes at frame 12 of 24
     before, after = load_checkpoint(init), load_checkpoint(bound["final_checkpoint"])
     binding = set(after.policy.binding_parameters())
     assert {"vl_proj.weight", "vl_norm.weight", "grounding.compose.weight"} <= binding
     assert not any(name.startswith("grounding.goal.") for name in binding)
     changed = {name for name, p in after.policy.named_parameters()
-               if name in dict(before.policy.named_parameters()) and not torch.equal(p, before.policy.get_parameter(name))}
+               if name in dict(before.policy.named_parameters()) and not torch.equal(p,
+                                                                                     before.policy.get_parameter(name))}
     assert changed and changed <= binding and "vl_proj.weight" in changed
     assert torch.equal(after.policy.grounding.goal[2].weight, torch.zeros_like(after.policy.grounding.goal[2].weight))
     logged = _rows(tmp_path / "bind")
     assert all("grounding_loss" in row and "flow_loss" not in row for row in logged)
-    groups = torch.load(tmp_path / "bind" / "final" / "training_state.pt", weights_only=False)["optimizer"]["param_groups"]
+    groups = torch.load(tmp_path / "bind" / "final" / "training_state.pt",
+                        weights_only=False)["optimizer"]["param_groups"]
     assert {g["lr_scale"] for g in groups} == {1.0}  # bind trains at --lr
 
     # a bind run from a grounded checkpoint starts from a fresh grounding drawn from --seed
-    from trivla_drake.train.trainer import build_model
+    from trivla_drake.train.model_setup import build_model
 
-    again = TrainConfig(stage="policy", data=data, out=str(tmp_path / "x"), init=bound["final_checkpoint"], steps=1,
-                        grounding_weight=1.0, grounding_phase="bind", seed=5, **runs["common"]).resolved()
+    again = with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "x"), init=bound["final_checkpoint"],
+                                   steps=1, seed=5, **runs["common"]), {"policy.grounding.weight": 1.0,
+                                                                        "policy.grounding.phase": "bind"}).resolved()
     rebound = build_model(again, None).policy.grounding.state_dict()
     assert not torch.equal(rebound["compose.weight"], after.policy.grounding.compose.weight)
     assert torch.equal(rebound["compose.weight"], build_model(again, None).policy.grounding.compose.weight)
     # --keep-grounding: a bind run goes on from --init's grounding (a curriculum); refused without one
-    kept = build_model(dataclasses.replace(again, keep_grounding=True), None).policy.grounding.state_dict()
+    kept = build_model(with_flags(again, {"policy.grounding.keep": True}), None).policy.grounding.state_dict()
     assert all(torch.equal(kept[k], v) for k, v in after.policy.grounding.state_dict().items())
-    with pytest.raises(ValueError, match="keep_grounding.*which has none"):
-        build_model(dataclasses.replace(again, init=init, keep_grounding=True), None)
-    with pytest.raises(ValueError, match="grounding_reads_gripper.*follow run keeps.*bind one with"):
-        build_model(dataclasses.replace(again, grounding_phase="follow", grounding_reads_gripper=True), None)
+    with pytest.raises(ValueError, match="policy.grounding.keep .*which has none"):
+        build_model(with_flags(dataclasses.replace(again, init=init), {"policy.grounding.keep": True}), None)
+    with pytest.raises(ValueError, match="policy.grounding.reads_gripper .*follow run keeps.*bind one with"):
+        build_model(with_flags(again, {"policy.grounding.phase": "follow", "policy.grounding.reads_gripper": True}),
+                    None)
     # --keep-grounding --grounding-reads-gripper --bind-held-only: only the held-block read-out (a copy of the
     # bound read-out) trains; every other weight and the feature statistics stay the bound checkpoint's (on
     # other data, whose statistics differ)
     held_data = write_synthetic_dataset(tmp_path / "held_data", episodes=3, length=24, tcp_pose=True, seed=2)
-    held_only = train(TrainConfig(stage="policy", data=held_data, out=str(tmp_path / "held"), init=bound["final_checkpoint"],
-                                  steps=2, grounding_weight=1.0, grounding_phase="bind", keep_grounding=True,
-                                  grounding_reads_gripper=True, bind_held_only=True, **runs["common"]))
+    held_only = train(with_flags(TrainConfig(stage="policy", data=held_data, out=str(tmp_path / "held"),
+                                             init=bound["final_checkpoint"], steps=2, **runs["common"]), {"policy.grounding.weight": 1.0, "policy.grounding.phase": "bind", "policy.grounding.keep": True, "policy.grounding.reads_gripper": True, "policy.grounding.bind_held_only": True}))
     gripped = load_checkpoint(held_only["final_checkpoint"])
     held = set(gripped.policy.held_parameters())
     assert held and all(name.startswith("grounding.held.") for name in held)
@@ -305,7 +317,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
         assert torch.equal(mine[name], value), name
     # --fresh-system1 in a follow run: a System 1 drawn anew from --seed but for the bound checkpoint's
     # binding and feature statistics, which it keeps (a policy learnt anew on a grounding bound elsewhere)
-    fresh_follow = dataclasses.replace(again, grounding_phase="follow", fresh_system1=True)
+    fresh_follow = with_flags(again, {"policy.grounding.phase": "follow", "policy.fresh_system1": True})
     fresh_follow.validate()
     anew = build_model(fresh_follow, None).policy
     drawn = load_checkpoint(bound["final_checkpoint"])
@@ -316,14 +328,15 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert not all(torch.equal(p, bound_weights[name]) for name, p in anew.named_parameters() if name not in binding)
     for name, buffer in after.policy.named_buffers():
         assert torch.equal(anew.get_buffer(name), buffer), name
-    with pytest.raises(ValueError, match=r"fresh_system1 \(--fresh-system1\).*joint, or follow"):
-        dataclasses.replace(again, fresh_system1=True).validate()  # a bind run
-    for bad in (dict(grounding_phase="follow"), dict(init=None)):
-        with pytest.raises(ValueError, match=r"keep_grounding \(--keep-grounding\).*bind and --init"):
-            dataclasses.replace(again, keep_grounding=True, **bad).validate()
+    with pytest.raises(ValueError, match=r"policy.fresh_system1 .*joint, or follow"):
+        with_flags(again, {"policy.fresh_system1": True}).validate()  # a bind run
+    keep = with_flags(again, {"policy.grounding.keep": True})
+    for bad in (with_flags(keep, {"policy.grounding.phase": "follow"}), dataclasses.replace(keep, init=None)):
+        with pytest.raises(ValueError, match=r"policy.grounding.keep .*bind and init"):
+            bad.validate()
     other = write_synthetic_dataset(tmp_path / "other", episodes=3, length=24, tcp_pose=True, seed=1)
-    follow = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "follow"), init=bound["final_checkpoint"],
-                               steps=3, grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+    follow = train(with_flags(TrainConfig(stage="policy", data=other, out=str(tmp_path / "follow"),
+                                          init=bound["final_checkpoint"], steps=3, **runs["common"]), {"policy.grounding.weight": 1.0, "policy.grounding.phase": "follow"}))
     assert follow["samples"] == 3 * 24
     followed = load_checkpoint(follow["final_checkpoint"])
     for name, p in followed.policy.named_parameters():
@@ -332,59 +345,61 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     # the binding's feature statistics stay, though another dataset's would differ
     assert torch.equal(followed.policy.vl_standardizer.mean, after.policy.vl_standardizer.mean)
     # --subgoal-offset: a follow run adds the offset encoder (from zero) and trains it with the rest
-    offset = train(TrainConfig(stage="policy", data=other, out=str(tmp_path / "offset"), init=bound["final_checkpoint"],
-                               steps=2, grounding_weight=1.0, grounding_phase="follow", subgoal_offset=True,
-                               **runs["common"]))
+    offset = train(with_flags(TrainConfig(stage="policy", data=other, out=str(tmp_path / "offset"),
+                                          init=bound["final_checkpoint"], steps=2, **runs["common"]), {"policy.grounding.weight": 1.0, "policy.grounding.phase": "follow", "policy.subgoal_offset": True}))
     offset_model = load_checkpoint(offset["final_checkpoint"])
     assert offset_model.config.policy.subgoal_offset and not after.config.policy.subgoal_offset
     assert offset_model.policy.subgoal_offset.mlp[2].weight.abs().sum() > 0
     assert torch.equal(offset_model.policy.grounding.compose.weight, after.policy.grounding.compose.weight)
 
     with pytest.raises(ValueError, match="follow keeps the instruction grounding.*bind first"):
-        train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,
-                          grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+        train(with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f1"), init=init, steps=1,
+                                     **runs["common"]), {"policy.grounding.weight": 1.0,
+                                                         "policy.grounding.phase": "follow"}))
     with pytest.raises(ValueError, match="follow keeps the instruction grounding.*--init"):
-        train(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f2"), steps=1,
-                          grounding_weight=1.0, grounding_phase="follow", **runs["common"]))
+        train(with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "f2"), steps=1, **runs["common"]),
+                         {"policy.grounding.weight": 1.0, "policy.grounding.phase": "follow"}))
     assert not (tmp_path / "f1").exists() or not any((tmp_path / "f1").iterdir())
-    with pytest.raises(ValueError, match="grounding_phase.*bind.*grounding_weight"):
-        TrainConfig(stage="policy", data=data, out=str(tmp_path / "w"), grounding_phase="bind").resolved().validate()
-    with pytest.raises(ValueError, match="grounding_phase \\(--grounding-phase\\) must be one of joint, bind, follow"):
-        TrainConfig(stage="policy", data=data, out=str(tmp_path / "p"), grounding_weight=1.0,
-                    grounding_phase="both").resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.phase .*needs policy.grounding.weight > 0"):
+        with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "w")),
+                   {"policy.grounding.phase": "bind"}).resolved().validate()
+    with pytest.raises(ValueError, match="policy.grounding.phase must be one of joint, bind, follow"):
+        with_flags(TrainConfig(stage="policy", data=data, out=str(tmp_path / "p")), {"policy.grounding.weight": 1.0,
+                                                                                     "policy.grounding.phase": "both"}).resolved().validate()
 
 
 def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_path):
     """--dense-weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
     set's label maps next to the LM loss, logs the dense loss, and is refused outside the vlm stage."""
-    summary = train(TrainConfig(stage="vlm", out=str(tmp_path / "dense"), init=runs["video"]["final_checkpoint"],
-                                steps=3, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
-                                dense_weight=1.0, **runs["common"]))
+    summary = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "dense"),
+                                           init=runs["video"]["final_checkpoint"], steps=3, **runs["common"]), {"vlm.vqa_scenes": 10, "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0}))
     model = load_checkpoint(summary["final_checkpoint"])
     assert model.config.vision_language.dense_classes == 3 and model.vision_language.block_head is not None
     logged = [json.loads(line) for line in (tmp_path / "dense" / "log.jsonl").read_text().splitlines()]
     assert len(logged) == 3 and all(row["dense_loss"] > 0 for row in logged)
     assert all(row["loss"] > row["vlm_loss"] for row in logged)
     # the policy stage keeps the head untouched (it trains System 1 only)
-    with pytest.raises(ValueError, match="dense_weight.*not the policy stage"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), dense_weight=1.0).resolved().validate()
-    with pytest.raises(ValueError, match="dense_weight \\(--dense-weight\\) must be >= 0"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=-1.0).resolved().validate()
+    with pytest.raises(ValueError, match="vlm.dense_weight .* setting of the vlm stage; this run is the policy stage"):
+        with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p")),
+                   {"vlm.dense_weight": 1.0}).resolved().validate()
+    with pytest.raises(ValueError, match="vlm.dense_weight must be >= 0"):
+        with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")), {"vlm.dense_weight": -1.0}).resolved().validate()
     # --dense-subcells on a model whose head has whole cells: a fresh, wider head, recorded in the config
-    finer = train(TrainConfig(stage="vlm", out=str(tmp_path / "finer"), init=summary["final_checkpoint"],
-                              steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
-                              dense_weight=1.0, dense_subcells=2, **runs["common"]))
+    finer = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "finer"), init=summary["final_checkpoint"],
+                                         steps=1, **runs["common"]), {"vlm.vqa_scenes": 10,
+                                                                      "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0, "vlm.dense_subcells": 2}))
     finer_model = load_checkpoint(finer["final_checkpoint"])
     assert finer_model.config.vision_language.dense_subcells == 2
     assert finer_model.vision_language.block_head.out_features == 3 * 4
-    again = train(TrainConfig(stage="vlm", out=str(tmp_path / "again"), init=finer["final_checkpoint"],
-                              steps=1, vqa_scenes=10, vqa_questions_per_scene=4, vqa_eval_questions=0,
-                              dense_weight=1.0, **runs["common"]))  # no --dense-subcells: the head is kept
+    again = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "again"), init=finer["final_checkpoint"],
+                                         steps=1, **runs["common"]), {"vlm.vqa_scenes": 10,
+                                                                      "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0}))  # no --dense-subcells: the head is kept
     assert load_checkpoint(again["final_checkpoint"]).config.vision_language.dense_subcells == 2
-    with pytest.raises(ValueError, match="dense_subcells.*needs dense_weight"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_subcells=2).resolved().validate()
-    with pytest.raises(ValueError, match="dense_subcells \\(--dense-subcells\\) must be >= 1"):
-        TrainConfig(stage="vlm", out=str(tmp_path / "v"), dense_weight=1.0, dense_subcells=0).resolved().validate()
+    with pytest.raises(ValueError, match="vlm.dense_subcells .*needs vlm.dense_weight"):
+        with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")), {"vlm.dense_subcells": 2}).resolved().validate()
+    with pytest.raises(ValueError, match="vlm.dense_subcells must be >= 1"):
+        with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")), {"vlm.dense_weight": 1.0,
+                                                                       "vlm.dense_subcells": 0}).resolved().validate()
 
 
 def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, tmp_path):
@@ -392,9 +407,10 @@ def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, t
     from trivla_drake.train.checkpoints import export_checkpoint
 
     trimmed = export_checkpoint(runs["vlm"]["final_checkpoint"], tmp_path / "trimmed", drop_unused_llm_layers=True)
-    with pytest.raises(ValueError, match="drop_unused_llm_layers.*without --drop-unused-llm-layers"):
-        train(TrainConfig(stage="vlm", out=str(tmp_path / "v"), init=str(trimmed), steps=2, vqa_scenes=10,
-                          vqa_questions_per_scene=4, vqa_eval_questions=0, **runs["common"]))
+    with pytest.raises(ValueError, match="drop_unused_llm_layers.*export with drop_unused_llm_layers false"):
+        train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v"), init=str(trimmed), steps=2,
+                                     **runs["common"]), {"vlm.vqa_scenes": 10, "vlm.vqa_questions_per_scene": 4,
+                                                         "vlm.vqa_eval_questions": 0}))
     assert not (tmp_path / "v" / "final").exists()
     # the policy stage may start from it (Q_vl is the same)
     summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "p"), init=str(trimmed),
@@ -405,7 +421,7 @@ def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, t
 def test_a_fresh_vlm_run_builds_every_llm_layer_of_a_preset_that_drops_them(tmp_path):
     """The paper preset builds its LLM only up to the read-out layer (Q_vl needs no more); a fresh
     vlm run reads its answers from the last layer, so it builds them all. Configs only: no weights."""
-    from trivla_drake.train.trainer import fresh_model_config
+    from trivla_drake.train.model_setup import fresh_model_config
 
     assert make_config("paper").vision_language.drop_unused_llm_layers
     for stage, drops in (("vlm", False), ("policy", True)):
@@ -417,7 +433,7 @@ def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borr
     from trivla_drake.train.datasets import PolicyFeatureDataset
     from trivla_drake.train.distributed import DistEnv
     from trivla_drake.train.features import dynamics_feature_key, ensure_feature_cache, feature_cache_key
-    from trivla_drake.train.trainer import apply_ablations
+    from trivla_drake.train.model_setup import apply_ablations
 
     full = load_checkpoint(runs["vlm"]["final_checkpoint"]).eval()
     arm = apply_ablations(full, False, True, "test")
@@ -432,8 +448,10 @@ def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borr
     alone = dataclasses.replace(config, cache_dir=str(tmp_path / "own_cache"))
     own, summary = ensure_feature_cache(arm, reader, [0, 1, 2], alone, DistEnv(), progress=False)
     assert summary["feature_shards_borrowed"] == 0 and summary["feature_shards_computed"] == 3
-    kwargs = dict(feature_stride=1, action_horizon=arm.config.policy.action_horizon, use_system2=False, use_system3=True)
-    a, b = PolicyFeatureDataset(reader, [0, 1, 2], lent, **kwargs), PolicyFeatureDataset(reader, [0, 1, 2], own, **kwargs)
+    kwargs = dict(feature_stride=1, action_horizon=arm.config.policy.action_horizon, use_system2=False,
+                  use_system3=True)
+    a, b = PolicyFeatureDataset(reader, [0, 1, 2], lent, **kwargs), PolicyFeatureDataset(reader, [0, 1, 2], own,
+                                                                                         **kwargs)
     for i in (0, len(a) - 1):
         assert "q_vl" not in a[i]
         torch.testing.assert_close(a[i]["dynamics_wrist"], b[i]["dynamics_wrist"])
@@ -445,8 +463,9 @@ def test_arm_without_system2_computes_system3_features_equal_to_the_ones_it_borr
         next(other.dynamics.parameters()).add_(1e-3)
     retuned = apply_ablations(full, False, True, "test")
     retuned.config = dataclasses.replace(
-        retuned.config, dynamics=dataclasses.replace(retuned.config.dynamics, sigma_max=retuned.config.dynamics.sigma_max / 2))
-    for model, setting in ((other, config), (retuned, config), (arm, dataclasses.replace(config, feature_stride=2))):
+        retuned.config, dynamics=dataclasses.replace(retuned.config.dynamics,
+                                                     sigma_max=retuned.config.dynamics.sigma_max / 2))
+    for model, setting in ((other, config), (retuned, config), (arm, with_flags(config, {"features.stride": 2}))):
         assert dynamics_feature_key(model, setting) != dynamics_feature_key(full, config)
         setting = dataclasses.replace(setting, cache_dir=str(tmp_path / "lenders"))
         lender = tmp_path / "lenders" / "features"
@@ -498,9 +517,8 @@ def test_a_retrained_system2_copies_system3_features_from_a_lender(runs, tmp_pat
 def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, tmp_path):
     """--system2-from: the --init model with the donor's System 2 (trimmed as --init's is); System 3's
     features are copied from --init's cache, Q_vl computed with the new System 2."""
-    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "swap"), steps=2,
-                                init=runs["policy"]["final_checkpoint"], system2_from=runs["video"]["final_checkpoint"],
-                                **runs["common"]))
+    summary = train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "swap"), steps=2,
+                                           init=runs["policy"]["final_checkpoint"], **runs["common"]), {"policy.system2_from": runs["video"]["final_checkpoint"]}))
     model = load_checkpoint(summary["final_checkpoint"])
     donor, init = load_checkpoint(runs["video"]["final_checkpoint"]), load_checkpoint(runs["policy"]["final_checkpoint"])
     assert _same(_weights(model, "vision_language."), _weights(donor, "vision_language."))
@@ -508,33 +526,31 @@ def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, t
     assert not _same(_weights(model, "vision_language."), _weights(init, "vision_language."))
     assert summary["feature_shards_dynamics_copied"] == 3 and summary["feature_shards_computed"] == 3
     assert summary["feature_cache"] != runs["policy"]["feature_cache"]
-    with pytest.raises(ValueError, match="system2_from.*needs --stage policy, --init"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"),
-                    system2_from=runs["video"]["final_checkpoint"]).resolved().validate()
+    with pytest.raises(ValueError, match="policy.system2_from .*needs init and System 2"):
+        with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v")),
+                   {"policy.system2_from": runs["video"]["final_checkpoint"]}).resolved().validate()
     with pytest.raises(ValueError, match="system2_from.*follow run"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"), init=runs["policy"]["final_checkpoint"],
-                    grounding_weight=1.0, grounding_phase="follow",
-                    system2_from=runs["video"]["final_checkpoint"]).resolved().validate()
+        with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"),
+                               init=runs["policy"]["final_checkpoint"]), {"policy.grounding.weight": 1.0,
+                                                                          "policy.grounding.phase": "follow", "policy.system2_from": runs["video"]["final_checkpoint"]}).resolved().validate()
     no_s2 = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "no_s2"), steps=1,
                               init=runs["policy"]["final_checkpoint"], use_system2=False, **runs["common"]))
-    with pytest.raises(ValueError, match="--system2-from .*needs one in both models"):
-        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "bad"), steps=1,
-                          init=runs["policy"]["final_checkpoint"], system2_from=no_s2["final_checkpoint"],
-                          **runs["common"]))
+    with pytest.raises(ValueError, match="policy.system2_from .*needs one in both models"):
+        train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "bad"), steps=1,
+                                     init=runs["policy"]["final_checkpoint"], **runs["common"]), {"policy.system2_from": no_s2["final_checkpoint"]}))
     assert not (tmp_path / "bad" / "final").exists()
-    with pytest.raises(FileNotFoundError, match="--system2-from .*not a checkpoint directory"):
-        train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "missing"), steps=1,
-                          init=runs["policy"]["final_checkpoint"], system2_from=str(tmp_path / "nowhere"),
-                          **runs["common"]))
+    with pytest.raises(FileNotFoundError, match="policy.system2_from .*not a checkpoint directory"):
+        train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "missing"), steps=1,
+                                     init=runs["policy"]["final_checkpoint"], **runs["common"]), {"policy.system2_from": str(tmp_path / "nowhere")}))
 
 
 def test_fresh_system1_trains_a_new_system1_on_the_init_models_systems_2_and_3(runs, tmp_path):
     """--fresh-system1: System 1 drawn anew from --seed (not --init's), Systems 2 and 3 kept as --init has
     them; the same seed draws the same System 1."""
     init = load_checkpoint(runs["policy"]["final_checkpoint"])
-    common = {**runs["common"], "lr": 1e-12, "warmup_steps": 1}
-    summary = train(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "fresh"), steps=1, seed=5,
-                                init=runs["policy"]["final_checkpoint"], fresh_system1=True, **common))
+    common = {**runs["common"], "lr": 1e-12, "optimizer": OptimizerConfig(warmup_steps=1)}
+    summary = train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "fresh"), steps=1,
+                                           seed=5, init=runs["policy"]["final_checkpoint"], **common), {"policy.fresh_system1": True}))
     model = load_checkpoint(summary["final_checkpoint"])
     assert _same(_weights(model, "vision_language."), _weights(init, "vision_language."))
     assert _same(_weights(model, "dynamics."), _weights(init, "dynamics."))
@@ -547,8 +563,9 @@ def test_fresh_system1_trains_a_new_system1_on_the_init_models_systems_2_and_3(r
     other = load_checkpoint(runs["policy"]["final_checkpoint"])
     other.reset_system1(6)
     assert not _same(_weights(other, "policy."), _weights(expected, "policy."))
-    with pytest.raises(ValueError, match="fresh_system1.*needs --stage policy, --init and --grounding-phase joint"):
-        TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v"), fresh_system1=True).resolved().validate()
+    with pytest.raises(ValueError, match="policy.fresh_system1 .*needs init and policy.grounding.phase joint"):
+        with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "v")),
+                   {"policy.fresh_system1": True}).resolved().validate()
 
 
 def _narrowed_copy(data, out):

@@ -3,10 +3,13 @@ to the same average and trained weights."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from torch import nn
 
+from trivla_drake.config_io import with_flags
 from trivla_drake.nn import load_checkpoint
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train import checkpoints as ckpt
@@ -51,9 +54,8 @@ def data(tmp_path_factory):
 
 
 def _config(out, data, **kw):
-    return TrainConfig(stage="policy", out=str(out), data=data["data"], preset="tiny", steps=6, batch_size=2,
-                       checkpoint_every=2, cache_dir=data["cache"], progress=False, warmup_steps=1, lr=1e-3,
-                       ema_decay=0.5, **kw)
+    return with_flags(TrainConfig(stage="policy", out=str(out), data=data["data"], preset="tiny", steps=6,
+                                  batch_size=2, checkpoint_every=2, cache_dir=data["cache"], progress=False, lr=1e-3, ema_decay=0.5, **kw), {"optimizer.warmup_steps": 1})
 
 
 class Killed(Exception):
@@ -84,6 +86,6 @@ def test_checkpoints_hold_the_average_and_resume_to_the_same_run(data, tmp_path)
 
 
 def test_a_changed_decay_is_refused_on_resume(data, tmp_path):
-    train(TrainConfig(**{**_config(tmp_path / "plain", data).to_dict(), "ema_decay": 0.0}))
+    train(dataclasses.replace(_config(tmp_path / "plain", data), ema_decay=0.0))
     with pytest.raises(ValueError, match="ema_decay"):
-        train(TrainConfig(**{**_config(tmp_path / "plain", data).to_dict(), "steps": 8, "resume": True}))
+        train(dataclasses.replace(_config(tmp_path / "plain", data), steps=8, resume=True))

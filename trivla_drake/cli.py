@@ -7,14 +7,14 @@ import json
 import logging
 import os
 import sys
-from pathlib import Path
 
 # On a 2-core machine shared with physics and rendering, OpenMP threads that spin while waiting
 # turn a 0.1 s inference into seconds; passive waiting keeps them polite. Must precede torch.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-# The task `demo` runs when not told one.
-DEMO_TASK = "place_in_bowl"
+# The flags of `demo` (DemoConfig fields of the same names); the other fields are set with --set or --config.
+DEMO_FLAGS = ("policy", "checkpoint", "preset", "task", "instruction", "episodes", "chains", "seed", "latency",
+              "meshcat", "record")
 
 
 def _print_result(result: dict, as_json: bool, title: str) -> None:
@@ -28,25 +28,28 @@ def _print_result(result: dict, as_json: bool, title: str) -> None:
 
 
 def _cmd_sim(args) -> int:
-    from trivla_drake.eval.cli_commands import check_port, check_record_path, check_seconds
+    from trivla_drake.eval.cli_commands import command_config
+    from trivla_drake.eval.sim_config import SimConfig
 
-    check_seconds(args.seconds, "--seconds")
-    check_port(args.port)
-    check_record_path(args.record)
+    config = command_config(SimConfig, args, {"seconds": args.seconds, "meshcat": args.meshcat,
+                                              "record": args.record})
+    if config is None:
+        return 0
+    config.validate()
     from trivla_drake.eval.scripted_run import run_scripted
     from trivla_drake.station.meshcat_setup import make_meshcat
     from trivla_drake.station.scenario import load_scenario
 
-    scenario = load_scenario(args.scenario, args.scenario_name)
-    meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
-    if meshcat is not None and args.meshcat:
+    scenario = load_scenario(config.scenario, config.scenario_name)
+    meshcat = make_meshcat(config.port) if (config.meshcat or config.record) else None
+    if meshcat is not None and config.meshcat:
         print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
-    timing = run_scripted(scenario, args.seconds, meshcat=meshcat, record_html=args.record)
+    timing = run_scripted(scenario, config.seconds, meshcat=meshcat, record_html=config.record)
     result = timing.as_dict()
-    if args.record:
-        result["record"] = args.record
+    if config.record:
+        result["record"] = config.record
     _print_result(result, args.json, "sim")
-    if args.meshcat and not args.json and sys.stdin.isatty():
+    if config.meshcat and not args.json and sys.stdin.isatty():
         input("Simulation done; the scene stays in Meshcat until you press Enter.")
     return 0
 
@@ -60,16 +63,18 @@ def _set_torch_threads(threads: int) -> None:
 
 
 def _cmd_bench(args) -> int:
-    from trivla_drake.eval.cli_commands import check_seconds
+    from trivla_drake.eval.bench_config import BenchConfig
+    from trivla_drake.eval.cli_commands import command_config
 
-    check_seconds(args.seconds, "--seconds")
-    result: dict = {}
-    if args.precision != "float32" and not args.model:
-        raise ValueError("--precision goes with --model (the station benchmarks run the model in float32)")
-    if args.model:
+    config = command_config(BenchConfig, args, {"model": args.model, "preset": args.preset,
+                                                "checkpoint": args.checkpoint})
+    if config is None:
+        return 0
+    config.validate()
+    if config.model:
         from trivla_drake.nn.benchmark import benchmark_model, format_benchmark_table
 
-        model_result = benchmark_model(preset=args.preset or "cpu", precision=args.precision)
+        model_result = benchmark_model(preset=config.preset or "cpu", precision=config.precision)
         if args.json:
             print(json.dumps(model_result))
         else:
@@ -77,95 +82,63 @@ def _cmd_bench(args) -> int:
         return 0
     from trivla_drake.eval.model_loading import check_model_choice
 
-    check_model_choice(args.checkpoint, args.preset)  # before the station benchmarks, not after
+    check_model_choice(config.checkpoint, config.preset)  # before the station benchmarks, not after
+    from trivla_drake.eval.closed_loop import benchmark_closed_loop
     from trivla_drake.eval.diffik_benchmark import benchmark_diffik
+    from trivla_drake.eval.model_loading import load_model
     from trivla_drake.eval.station_benchmark import benchmark_station
     from trivla_drake.station.scenario import load_scenario
 
-    from trivla_drake.eval.closed_loop import benchmark_closed_loop
-    from trivla_drake.eval.model_loading import load_model
-
-    result.update(benchmark_diffik(num_problems=args.diffik_problems))
-    result.update(benchmark_station(load_scenario(args.scenario), seconds=args.seconds))
-    _set_torch_threads(args.threads)
-    model = load_model(args.checkpoint, preset=args.preset)
-    result.update(benchmark_closed_loop(load_scenario(args.scenario), model, seconds=args.seconds))
+    result: dict = {}
+    result.update(benchmark_diffik(num_problems=config.diffik_problems))
+    result.update(benchmark_station(load_scenario(config.scenario), seconds=config.seconds))
+    _set_torch_threads(config.threads)
+    model = load_model(config.checkpoint, preset=config.preset)
+    result.update(benchmark_closed_loop(load_scenario(config.scenario), model, seconds=config.seconds))
     _print_result(result, args.json, "benchmark")
     return 0
 
 
-def _check_chunk_execution(args, model) -> None:
-    """--execute-steps / --ensemble-decay against the model's chunk length, named as the user typed them."""
-    from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay, check_execute_steps
-
-    if args.execute_steps is not None:
-        check_execute_steps(args.execute_steps, int(model.config.policy.action_horizon), "--execute-steps")
-    if args.ensemble_decay is not None:
-        check_ensemble_decay(args.ensemble_decay, "--ensemble-decay")
-
-
 def _cmd_demo(args) -> int:
-    from trivla_drake.eval.cli_commands import check_instruction_text, check_port, check_record_path, check_seconds
+    from trivla_drake.eval.cli_commands import command_config
     from trivla_drake.eval.demo import run_oracle_demo, run_trivla_demo
-    from trivla_drake.eval.evaluate import check_episode_count
+    from trivla_drake.eval.demo_config import DemoConfig
     from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
     from trivla_drake.systems.latency import LatencyModel
-    from trivla_drake.tasks.suite import check_run_settings
 
-    if args.chains is not None:
-        check_episode_count(args.chains, "--chains")
-        given = [flag for flag, value in (("--task", args.task), ("--instruction", args.instruction),
-                                          ("--episodes", args.episodes)) if value is not None]
-        if given:
-            raise ValueError(f"--chains draws every chain's tasks and instructions: leave out {', '.join(given)}")
-        if args.policy == "oracle":
-            raise ValueError("--chains runs TriVLA as Drake systems; the oracle's chains: "
-                             "trivla-drake evaluate --policy oracle --episodes 0 --chains N")
-    args.task = args.task or DEMO_TASK
-    args.episodes = 1 if args.episodes is None else args.episodes
-    # `evaluate`'s checks of the task (an unknown name lists the valid ones) and --seed; then the rest, all before
-    # a model loads or a simulation runs.
-    check_run_settings([args.task], args.seed)
-    check_episode_count(args.episodes, "--episodes")
-    check_seconds(args.max_seconds, "--max-seconds")
-    check_instruction_text(args.instruction)
-    check_port(args.port)
-    check_record_path(args.record)
-    latency = LatencyModel.parse(args.latency)
-    if args.policy == "oracle":
-        if (args.meshcat or args.record or args.instruction or args.checkpoint or args.preset or args.noise_scale is not None
-                or args.execute_steps is not None or args.ensemble_decay is not None or latency.mode != "zero"):
-            raise ValueError("--meshcat, --record, --instruction, --checkpoint, --preset, --noise-scale, --execute-steps, "
-                             "--ensemble-decay and --latency go with --policy trivla (the oracle runs in the "
-                             "evaluation harness, without latency)")
-        report = run_oracle_demo(args.task, episodes=args.episodes, seed=args.seed, progress=not args.no_progress)
+    config = command_config(DemoConfig, args, {name: getattr(args, name) for name in DEMO_FLAGS})
+    if config is None:
+        return 0
+    config.validate()  # all before a model loads or a simulation runs
+    task, episodes, inference = config.task_name(), config.episode_count(), config.inference
+    if config.policy == "oracle":
+        report = run_oracle_demo(task, episodes=episodes, seed=config.seed, progress=not args.no_progress)
     else:
         from trivla_drake.eval.model_loading import load_model
 
-        _set_torch_threads(args.threads)
-        model = load_model(args.checkpoint, preset=args.preset)
-        if args.noise_scale is not None:
-            model.set_initial_noise_scale(args.noise_scale)
-        _check_chunk_execution(args, model)
-        meshcat = make_meshcat(args.port) if (args.meshcat or args.record) else None
-        if args.meshcat:
+        _set_torch_threads(config.threads)
+        model = load_model(config.checkpoint, preset=config.preset)
+        if inference.noise_scale is not None:
+            model.set_initial_noise_scale(inference.noise_scale)
+        inference.validate(chunk_length=int(model.config.policy.action_horizon))
+        meshcat = make_meshcat(config.port) if (config.meshcat or config.record) else None
+        if config.meshcat:
             print(f"Meshcat: {meshcat.web_url()}", file=sys.stderr)
-        if args.record:
+        if config.record:
             meshcat.StartRecording(frames_per_second=30.0)
-        settings = dict(seed=args.seed, latency=latency, meshcat=meshcat, max_seconds=args.max_seconds,
-                        execute_steps=args.execute_steps, ensemble_decay=args.ensemble_decay,
-                        progress=not args.no_progress)
-        if args.chains is not None:
+        settings = dict(seed=config.seed, latency=LatencyModel.parse(config.latency), meshcat=meshcat,
+                        max_seconds=config.max_seconds, execute_steps=inference.execute_steps,
+                        ensemble_decay=inference.ensemble_decay, progress=not args.no_progress)
+        if config.chains is not None:
             from trivla_drake.eval.demo_chains import run_trivla_chain_demo
 
-            report = run_trivla_chain_demo(model, chains=args.chains, **settings)
+            report = run_trivla_chain_demo(model, chains=config.chains, **settings)
         else:
-            report = run_trivla_demo(model, args.task, episodes=args.episodes, instruction=args.instruction,
-                                     **settings)
-        if args.record:
+            report = run_trivla_demo(model, task, episodes=episodes, instruction=config.instruction, **settings)
+        if config.record:
             meshcat.StopRecording()
             meshcat.PublishRecording()
-            save_static_html(meshcat, args.record)
+            save_static_html(meshcat, config.record)
     result = report.as_dict()
     if args.json:
         print(json.dumps(result))
@@ -195,43 +168,35 @@ def format_demo_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _names(comma_separated: str) -> list[str]:
-    return [name.strip() for name in comma_separated.split(",") if name.strip()]
-
-
-def _seeds(comma_separated: str) -> tuple[int, ...]:
+def _seeds(comma_separated: str) -> list[int]:
     """`tables --seeds`: the integers of a comma-separated list such as '1000,1001,1002'; else ValueError naming the
     flag (their range is TablesConfig's to check)."""
     try:
-        return tuple(int(seed) for seed in comma_separated.split(","))
+        return [int(seed) for seed in comma_separated.split(",")]
     except ValueError:
         raise ValueError(f"--seeds must be comma-separated integer base seeds, e.g. 1000,1001,1002; got "
                          f"{comma_separated!r}") from None
 
 
 def _cmd_tables(args) -> int:
+    from trivla_drake.eval.cli_commands import TABLES_CHECKPOINT_FLAGS, TABLES_FLAGS, command_config, flag_values
     from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
 
-    from trivla_drake.eval.evaluate import check_episode_count
+    def add_checkpoints(config: TablesConfig) -> None:
+        for role, path in flag_values(args, TABLES_CHECKPOINT_FLAGS).items():
+            if path is not None:
+                config.checkpoints[role] = path
 
-    check_episode_count(args.latency_episodes, "--latency-episodes", minimum=0)
-    if args.evaluations and args.no_reuse:
-        raise ValueError("--evaluations names a folder of evaluations to reuse, and --no-reuse reuses none: pass one")
-    checkpoints = {role: path for role, path in (("full", args.full), ("system1_3", args.system1_3),
-                                                 ("system1", args.system1), ("data10", args.data10)) if path}
-    config = TablesConfig(checkpoints=checkpoints, episodes=args.episodes, chains=args.chains,
-                          seeds=_seeds(args.seeds), workers=args.workers,
-                          max_steps=args.max_steps, latency_episodes=args.latency_episodes,
-                          noise_scale=args.noise_scale, execute_steps=args.execute_steps,
-                          ensemble_decay=args.ensemble_decay, threads=args.threads,
-                          results_dir=None if args.no_reuse else (args.evaluations or str(Path(args.out) / "evaluations")))
-    if args.tasks != "all":
-        config.tasks = _names(args.tasks)
-    if args.latency_tasks:
-        config.latency_tasks = _names(args.latency_tasks)
-    _set_torch_threads(args.threads)
+    args.seeds = None if args.seeds is None else _seeds(args.seeds)
+    config = command_config(TablesConfig, args, flag_values(args, TABLES_FLAGS), finish=add_checkpoints)
+    if config is None:
+        return 0
+    if not config.out:
+        raise ValueError("--out is missing: the folder for report.md, report.json and the plots")
+    config.validate()
+    _set_torch_threads(config.threads)
     report = make_tables(config)
-    files = write_tables(report, args.out)
+    files = write_tables(report, config.out, config)
     if args.json:
         print(json.dumps(report))
     else:
@@ -244,23 +209,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     commands = parser.add_subparsers(dest="command", required=True)
-    from trivla_drake.eval.cli_commands import (add_chunk_execution_arguments, add_collect_parser, add_evaluate_parser,
-                                                 add_noise_scale_argument)
-    from trivla_drake.eval.evaluate import EVAL_BASE_SEED
-    from trivla_drake.eval.paper_tables import TablesConfig
+    from trivla_drake.config_io import add_config_arguments
+    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser
+    from trivla_drake.eval.demo_config import DEMO_TASK
+    from trivla_drake.eval.evaluate_config import EVAL_BASE_SEED
 
-    sim = commands.add_parser("sim", help="run the station closed loop along a scripted end-effector path")
-    sim.add_argument("--seconds", type=float, default=8.0, help="simulated time [s] (default 8)")
-    sim.add_argument("--meshcat", action="store_true", help="show the run live in Meshcat (localhost)")
-    sim.add_argument("--port", type=int, default=None, help="Meshcat port (default: Drake's, 7000 up)")
+    more = "settings beyond these flags: --set field=value (see --print-config)"
+    sim = commands.add_parser("sim", help=f"run the station closed loop along a scripted end-effector path; {more}, "
+                                          "e.g. --set scenario=FILE --set port=7001")
+    sim.add_argument("--seconds", type=float, default=None, help="simulated time [s] (default 8)")
+    sim.add_argument("--meshcat", action="store_true", default=None, help="show the run live in Meshcat (localhost)")
     sim.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
-    sim.add_argument("--scenario", default=None, help="scenarios YAML file (default: models/default.scenarios.yaml)")
-    sim.add_argument("--scenario-name", default="default", help="scenario to load from the file")
+    add_config_arguments(sim)
     sim.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     sim.set_defaults(run=_cmd_sim)
 
-    demo = commands.add_parser("demo", help="closed-loop episodes: TriVLA as Drake systems, or the oracle")
-    demo.add_argument("--policy", choices=("trivla", "oracle"), default="trivla")
+    demo = commands.add_parser("demo", help="closed-loop episodes: TriVLA as Drake systems, or the oracle; "
+                                            f"{more}, e.g. --set max_seconds=5 --set inference.execute_steps=5")
+    demo.add_argument("--policy", choices=("trivla", "oracle"), default=None, help="trivla (the default) or oracle")
     demo.add_argument("--checkpoint", help="TriVLA checkpoint (default: models/trivla_cpu)")
     demo.add_argument("--preset", choices=("tiny", "cpu"), default=None,
                       help="an UNTRAINED model of this preset instead (for wiring and timing, not success)")
@@ -271,17 +237,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help="instead of episodes of one task, N 5-task chains in one simulation each, the instruction "
                            "input changed as each task is done (chain j starts as `evaluate --chains`'s chain j); "
                            "reports Avg. Len")
-    demo.add_argument("--seed", type=int, default=EVAL_BASE_SEED,
+    demo.add_argument("--seed", type=int, default=None,
                       help=f"base seed (default {EVAL_BASE_SEED}: scenes unseen by demonstrations collected with seed 0)")
-    demo.add_argument("--latency", default="zero", help="zero, measured (each inference's wall time) or seconds")
-    demo.add_argument("--max-seconds", type=float, default=None,
-                      help="episode time limit in sim seconds (default: the task's own limit)")
-    demo.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    add_noise_scale_argument(demo)
-    add_chunk_execution_arguments(demo)
-    demo.add_argument("--meshcat", action="store_true", help="show it live in Meshcat (localhost)")
-    demo.add_argument("--port", type=int, default=None, help="Meshcat port")
+    demo.add_argument("--latency", default=None,
+                      help="zero (the default), measured (each inference's wall time) or seconds")
+    demo.add_argument("--meshcat", action="store_true", default=None, help="show it live in Meshcat (localhost)")
     demo.add_argument("--record", metavar="FILE.html", help="save the run as a self-contained HTML page")
+    add_config_arguments(demo)
     demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     demo.add_argument("--no-progress", action="store_true",
                       help="no progress bar (on stderr, with the successes so far)")
@@ -289,59 +251,45 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_collect_parser(commands)
     add_evaluate_parser(commands)
-    from trivla_drake.train.cli_commands import add_export_parser, add_soup_parser, add_train_parser
+    from trivla_drake.train.cli_commands import add_export_parser, add_refit_parser, add_soup_parser, add_train_parser
 
     add_train_parser(commands)
     add_export_parser(commands)
     add_soup_parser(commands)
+    add_refit_parser(commands)
 
     tables = commands.add_parser("tables", help="the paper's tables for our suite (success, chains, ablation, "
-                                 "data efficiency, paraphrases, latency), Markdown + JSON + plots")
-    tables.add_argument("--full", required=True, help="checkpoint: Systems 1+2+3, all demonstrations")
+                                 f"data efficiency, paraphrases, latency), Markdown + JSON + plots; {more}, e.g. "
+                                 "--set chains=3 --set latency_tasks=[lift_block] --set results_dir=DIR")
+    tables.add_argument("--full", help="checkpoint: Systems 1+2+3, all demonstrations (required)")
     tables.add_argument("--system1-3", help="checkpoint trained without System 2")
     tables.add_argument("--system1", help="checkpoint trained without Systems 2 and 3")
     tables.add_argument("--data10", help="checkpoint trained on 10%% of the demonstrations")
-    tables.add_argument("--out", required=True, help="folder for report.md, report.json and the plots")
-    tables.add_argument("--tasks", default="all")
-    tables.add_argument("--episodes", type=int, default=5, help="episodes per task and seed (default 5)")
-    default_seeds = ",".join(map(str, TablesConfig.seeds))
-    tables.add_argument("--seeds", default=default_seeds,
-                        help=f"comma-separated base seeds (default {default_seeds}: unseen by `collect`'s seed 0)")
-    tables.add_argument("--chains", type=int, default=5, help="5-task chains per seed (default 5)")
-    tables.add_argument("--latency-episodes", type=int, default=2, help="episodes per task, latency rows")
-    tables.add_argument("--latency-tasks", default=None,
-                        help="comma-separated tasks of the latency rows (default lift_block,turn_on_light,open_drawer)")
-    tables.add_argument("--workers", type=int, default=1)
-    tables.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode")
-    tables.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    add_noise_scale_argument(tables)
-    add_chunk_execution_arguments(tables)
-    tables.add_argument("--no-reuse", action="store_true",
-                        help="do not store or reuse evaluations in OUT/evaluations/ (default: reuse, so a "
-                             "killed or extended run redoes only what is missing)")
-    tables.add_argument("--evaluations", default=None, metavar="DIR",
-                        help="folder of stored evaluations to reuse and add to (default OUT/evaluations/), e.g. "
-                             "another report's, so a report with one more checkpoint reruns only that one's")
+    tables.add_argument("--out", default=None, help="folder for report.md, report.json, the plots, tables_config.yaml "
+                                                    "and (unless --set reuse=false) the evaluations/ it reuses")
+    tables.add_argument("--episodes", type=int, default=None, help="episodes per task and seed (default 5)")
+    tables.add_argument("--seeds", default=None,
+                        help="comma-separated base seeds (default 1000,1001,1002: unseen by `collect`'s seed 0)")
+    tables.add_argument("--workers", type=int, default=None, help="worker processes (default 1)")
+    add_config_arguments(tables)
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
 
-
-    bench = commands.add_parser("bench", help="benchmarks: diff-IK and station speed, or --model latency")
-    bench.add_argument("--model", action="store_true", help="benchmark the TriVLA model instead")
+    bench = commands.add_parser("bench", help=f"benchmarks: diff-IK and station speed, or --model latency; {more}, "
+                                              "e.g. --set precision=bfloat16 --set seconds=2")
+    bench.add_argument("--model", action="store_true", default=None, help="benchmark the TriVLA model instead")
     bench.add_argument("--preset", default=None,
                        help="model preset (tiny, cpu, paper): with --model, the preset timed (default cpu); without, "
                             "an UNTRAINED model of it for the closed-loop figure instead of the shipped checkpoint")
-    bench.add_argument("--precision", default="float32", choices=("float32", "bfloat16", "float16"),
-                       help="--model: autocast dtype of the timed calls (weights stay float32; default float32)")
-    bench.add_argument("--seconds", type=float, default=4.0, help="simulated time per station run [s]")
-    bench.add_argument("--diffik-problems", type=int, default=2000, help="diff-IK problems to time")
-    bench.add_argument("--scenario", default=None, help="scenarios YAML file")
     bench.add_argument("--checkpoint", default=None, help="TriVLA checkpoint for the closed-loop figure "
                        "(default: models/trivla_cpu, else an untrained cpu model)")
-    bench.add_argument("--threads", type=int, default=1,
-                       help="torch threads in the closed loop (default 1: physics and rendering share the cores)")
+    add_config_arguments(bench)
     bench.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     bench.set_defaults(run=_cmd_bench)
+
+    from trivla_drake.recipe_command import add_recipe_parser
+
+    add_recipe_parser(commands)
     return parser
 
 

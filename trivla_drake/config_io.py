@@ -129,6 +129,25 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                         help="YAML file of settings (fields of the job's config; the rest keep their defaults)")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                         help="override one setting after --config, e.g. --set train.lr=1e-4 (repeatable, in order)")
+    parser.add_argument("--print-config", action="store_true",
+                        help="print the full config this command would run with (YAML, loadable by --config) and exit")
+
+
+def with_flags(config, flags: Mapping[str, Any]):
+    """`config` with each dotted field of `flags` whose value is not None set to it (the command line's few direct
+    flags, applied after --config and --set); a copy, `config` is left as it is."""
+    config = copy.deepcopy(config)
+    for dotted, value in flags.items():
+        if value is None:
+            continue
+        *parents, name = dotted.split(".")
+        target = config
+        for parent in parents:
+            target = getattr(target, parent)
+        if not hasattr(target, name):
+            raise ConfigError(f"{type(target).__name__} has no field {name!r} (flag for {dotted})")
+        setattr(target, name, value)
+    return config
 
 
 def config_from_args(schema: type, args: argparse.Namespace, *, defaults=None):

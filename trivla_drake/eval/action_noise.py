@@ -62,7 +62,7 @@ class PerturbationBursts:
     def scaled(cls, scale: float) -> "PerturbationBursts":
         """The default bursts, `scale` times as often (0 never disturbs)."""
         if not 0.0 <= scale <= 1.0 / cls.rate:
-            raise ValueError(f"--action-noise must be in [0, {1.0 / cls.rate:.1f}], got {scale}")
+            raise ValueError(f"scale must be in [0, {1.0 / cls.rate:.1f}], got {scale}")
         return cls(rate=cls.rate * scale)
 
     def start(self, rng: np.random.Generator) -> "BurstState":

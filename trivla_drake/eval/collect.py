@@ -6,9 +6,9 @@ until it has `episodes_per_task` successes (at most `2 N + 5` attempts); failure
 committed one at a time in a fixed order, so a killed run leaves every finished episode readable,
 and running the same command again resumes: attempts already committed or failed are skipped.
 
-With `action_noise` > 0 the applied actions are disturbed in bursts (DART: the registered perturbation "dart",
-eval/perturbations.py); the recorded actions stay the oracle's and each episode's metadata lists its disturbed
-frames.
+With a `perturbation` (e.g. DART's bursts: the registered perturbation "dart", eval/perturbations.py) the applied
+actions are disturbed; the recorded actions stay the oracle's and each episode's metadata lists its disturbed
+frames. The dataset keeps the latest run's config as meta/collect_config.yaml.
 With `prelude_tasks` > 0 the oracle first completes 1 to `prelude_tasks` other tasks of a chain (drawn
 per attempt), unrecorded, and the episode starts where they left the scene and the hand, as the later
 tasks of a chain do (eval/episode.py, `run_episode(prelude=...)`); each episode's metadata lists them.
@@ -22,7 +22,7 @@ import logging
 import shutil
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -38,12 +38,9 @@ from trivla_drake.data.lerobot import (
     vector_feature,
     video_feature,
 )
-from trivla_drake.eval.action_noise import Disturbance
-from trivla_drake.eval.evaluate import check_episode_count, results_in_order
-from trivla_drake.eval.perturbations import make_perturbation
+from trivla_drake.eval.collect_config import MAX_PRELUDE_TASKS, CollectConfig  # noqa: F401  (read from here too)
+from trivla_drake.eval.evaluate import results_in_order
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
-from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import TASK_NAMES, check_run_settings
 
 _log = logging.getLogger(__name__)
 STATE_NAMES = (
@@ -55,55 +52,9 @@ STATE_NAMES = (
 TCP_POSE_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz"]
 CAMERAS = {"static_rgb": "observation.images.static", "wrist_rgb": "observation.images.wrist"}
 PROGRESS_FILE = "meta/trivla_collection.json"
-MAX_PRELUDE_TASKS = CHAIN_LENGTH - 1
+# The latest run's CollectConfig as YAML (`trivla-drake collect --config` reads it).
+CONFIG_FILE = "meta/collect_config.yaml"
 STAGING = ".staging"
-
-
-@dataclass
-class CollectConfig:
-    """What `collect` writes."""
-
-    # Dataset folder (created, or resumed if it holds an earlier run's dataset).
-    out: str
-    # Successful episodes wanted per task.
-    episodes_per_task: int = 50
-    # Task names (all by default).
-    tasks: list[str] = field(default_factory=lambda: list(TASK_NAMES))
-    # Base seed.
-    seed: int = 0
-    # Worker processes.
-    workers: int = 1
-    # Camera image size [px] (square).
-    image_size: int = 224
-    # Perturbation bursts on the applied actions, as a multiple of the default burst rate (DART, see
-    # eval/action_noise.py); 0 = clean demonstrations. Recorded per episode, so a resumed run may change it.
-    action_noise: float = 0.0
-    # Before its task the oracle completes 1 to this many other tasks of a chain (drawn per attempt),
-    # unrecorded, so the episode starts where a chain's earlier tasks leave the scene and the hand
-    # (0: from the start posture). Recorded per episode (PRELUDE_KEY, the tasks' names).
-    prelude_tasks: int = 0
-
-    def validate(self) -> None:
-        check_episode_count(self.episodes_per_task, "--episodes-per-task")
-        if self.workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {self.workers}")
-        if self.image_size < 16 or self.image_size % 2:
-            raise ValueError(f"image size must be an even number >= 16, got {self.image_size}")
-        if not self.tasks:
-            raise ValueError("--tasks is empty")
-        self.disturbance()  # validates --action-noise
-        if (isinstance(self.prelude_tasks, bool) or not isinstance(self.prelude_tasks, int)
-                or not 0 <= self.prelude_tasks <= MAX_PRELUDE_TASKS):
-            raise ValueError(f"--prelude-tasks must be an integer from 0 to {MAX_PRELUDE_TASKS} (a chain has "
-                             f"{MAX_PRELUDE_TASKS + 1} tasks), got {self.prelude_tasks!r}")
-        check_run_settings(self.tasks, self.seed)
-
-    def disturbance(self) -> Disturbance | None:
-        """The perturbation bursts of `action_noise` (the registered perturbation "dart"; None when 0)."""
-        return make_perturbation("dart", scale=self.action_noise) if self.action_noise else None
-
-    def max_attempts(self) -> int:
-        return 2 * self.episodes_per_task + 5
 
 
 def dataset_features(image_size: int, fps: float) -> dict[str, dict]:
@@ -200,6 +151,9 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     writer = LeRobotWriter(root, fps=fps, features=dataset_features(config.image_size, fps), robot_type="panda")
     state = _Progress(root, config)
     state.save()
+    from trivla_drake.config_io import save_config
+
+    save_config(config, root / CONFIG_FILE)
     shutil.rmtree(root / STAGING, ignore_errors=True)  # videos of attempts that were never committed
     done: dict[str, set[int]] = {t: set() for t in config.tasks}
     for row in writer.episode_rows():
@@ -234,7 +188,7 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
                         "trivla/params": list(result["params"]),
                         # Every setting's column on every episode (EPISODE_COLUMN_DEFAULTS where unused): one schema.
                         PERTURBED_FRAMES_KEY: result["perturbed_frames"],  # empty without a disturbance
-                        ACTION_NOISE_KEY: float(config.action_noise),
+                        ACTION_NOISE_KEY: config.action_noise(),
                         PRELUDE_KEY: list(result.get("prelude") or ()),
                     },
                 )

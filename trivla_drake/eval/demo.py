@@ -83,7 +83,7 @@ def run_trivla_demo(
     Each episode draws its scene and instruction from `seed + i` (as the evaluation harness does);
     `instruction` overrides the task's text (success is still the task's predicate). With
     `execute_steps` K, Systems 1, 2 and 3 update every K control steps instead of once per chunk, and
-    `ensemble_decay` averages the overlapping chunks (as `evaluate --execute-steps/--ensemble-decay`).
+    `ensemble_decay` averages the overlapping chunks (as `evaluate --set inference.execute_steps=K --set inference.ensemble_decay=M`).
     `stage_offset_s` is `PolicyRates.stage_offset_s` (0: the stages' simultaneous updates of before
     session 23, for comparison). `progress`: a bar on stderr with the successes so far.
     """

@@ -123,7 +123,7 @@ class ChainResult:
         return out
 
 
-# The longest hold check `evaluate --hold-check` takes [s].
+# The longest hold check `evaluate --set hold_check=S` takes [s].
 MAX_HOLD_CHECK_S = 10.0
 
 

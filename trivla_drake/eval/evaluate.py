@@ -8,137 +8,46 @@ so a run with `workers` processes gives exactly the results of a serial run with
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from multiprocessing import get_context
 from pathlib import Path
 
 from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import check_run_settings
+
+from trivla_drake.eval.evaluate_config import (  # noqa: F401  (EvalConfig & co. are read from here too)
+    EVAL_BASE_SEED,
+    MAX_EPISODES,
+    EvalConfig,
+    check_episode_count,
+)
 
 _POLICY_CACHE: dict[tuple, object] = {}
 
-
-# Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
-# demonstrations (tests check the two seed sets are disjoint).
-EVAL_BASE_SEED = 1000
-# The most episodes per task (or chains) one run takes: more would run for months (an episode takes seconds), and a
-# number such as 10**20 is a typo to refuse before anything runs.
-MAX_EPISODES = 100_000
 # With a prelude: how many times an episode's scene is redrawn when the oracle's prelude fails or leaves the
 # task no way to start (then the episode counts as a failure with the prelude's reason).
 PRELUDE_REDRAWS = 10
-
-
-@dataclass
-class EvalConfig:
-    """What `evaluate` runs."""
-
-    # 'oracle', 'random', 'trivla' (the shipped checkpoint) or a checkpoint path.
-    policy: str = "oracle"
-    # Task names (all tasks by default).
-    tasks: list[str] = field(default_factory=list)
-    # Episodes per task.
-    episodes: int = 10
-    # Base seed of every episode's and chain's randomness.
-    seed: int = EVAL_BASE_SEED
-    # Chains of five tasks to run (0: none).
-    chains: int = 0
-    # Instructions from the held-out paraphrases instead of the training templates.
-    paraphrases: bool = False
-    # Processes to run episodes in (1: in this process).
-    workers: int = 1
-    # Folder for one mp4 per episode / chain (None: no videos).
-    record_dir: str | None = None
-    # Image size for policies that look (None: 224 when images are needed, else no rendering).
-    image_size: int | None = None
-    # Cap on the steps of every episode (None: each task's own max_steps); for quick runs.
-    max_steps: int | None = None
-    # TriVLA only: standard deviation of the noise System 1's sampling starts from (None: 1, the
-    # paper's; 0: deterministic chunks).
-    noise_scale: float | None = None
-    # TriVLA only: replan every this many control steps, playing only the first rows of each chunk (None:
-    # the whole chunk, 10 steps, as the Drake TriVLAPolicy's default).
-    execute_steps: int | None = None
-    # TriVLA only: ACT's temporal ensembling of the chunks that cover a step, weight exp(-m i) with i = 0
-    # the oldest (None: play the newest chunk). Useful with execute_steps < 10, where chunks overlap.
-    ensemble_decay: float | None = None
-    # Episodes start after the oracle has completed this many other tasks of a chain (unrecorded), where
-    # a chain's later tasks start (0: from the start posture). A prelude that fails or leaves the task no
-    # way to start is redrawn (it is no failure of the policy).
-    prelude: int = 0
-    # Registered policy wrappers (eval/policy_wrappers.py) around the policy, the first innermost; e.g. "home_first"
-    # (learned policies: every task that does not start the episode first homes the hand, eval/home_first.py).
-    policy_wrappers: list[str] = field(default_factory=list)
-    # Seconds the hand is held still after each success (the gripper keeping its last command) before the task's
-    # predicate is asked again; the report then also counts the successes that lasted (None: no hold check).
-    # Successes are still counted when the predicate first holds, as CALVIN counts them (results/predicate_audit/).
-    # Single tasks are then the runs without the hold; in chains the next task starts after the hold, so the chains
-    # themselves differ (results/hold_check/).
-    hold_check: float | None = None
-
-    def validate(self) -> None:
-        if self.episodes < 0 or self.chains < 0:
-            raise ValueError(f"--episodes and --chains must be >= 0, got {self.episodes} and {self.chains}")
-        check_episode_count(self.episodes, "--episodes", minimum=0)
-        check_episode_count(self.chains, "--chains", minimum=0)
-        if not self.tasks and self.chains <= 0:
-            raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
-        check_run_settings(self.tasks, self.seed)
-        if self.workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {self.workers}")
-        if isinstance(self.prelude, bool) or not isinstance(self.prelude, int) or not 0 <= self.prelude < CHAIN_LENGTH:
-            raise ValueError(f"--prelude must be an integer from 0 to {CHAIN_LENGTH - 1}, got {self.prelude!r}")
-        if self.noise_scale is not None:
-            from trivla_drake.nn.policy import check_noise_scale
-
-            check_noise_scale(self.noise_scale, "--noise-scale")
-        if self.execute_steps is not None:
-            from trivla_drake.eval.trivla_harness_policy import check_execute_steps
-
-            # The chunk length is the checkpoint's; loading it checks the upper bound.
-            check_execute_steps(self.execute_steps, None, "--execute-steps")
-        if self.ensemble_decay is not None:
-            from trivla_drake.eval.trivla_harness_policy import check_ensemble_decay
-
-            check_ensemble_decay(self.ensemble_decay, "--ensemble-decay")
-        from trivla_drake.eval.episode import check_hold_check
-
-        check_hold_check(self.hold_check, "--hold-check")
-        from trivla_drake.eval.policy_wrappers import check_policy_wrappers
-
-        check_policy_wrappers(self.policy_wrappers)
-        if "home_first" in self.policy_wrappers and self.policy == "oracle":
-            raise ValueError("--home-first applies to learned policies, not to --policy oracle (it plans from "
-                             "wherever the hand is)")
-
-    def policy_key(self) -> tuple:
-        """What loads this config's policy (see `_policy`)."""
-        return self.policy, self.noise_scale, self.execute_steps, self.ensemble_decay, tuple(self.policy_wrappers)
-
-
-def check_episode_count(count: int, flag: str, *, minimum: int = 1) -> int:
-    """`count` if it is an integer from `minimum` to MAX_EPISODES; else ValueError naming `flag` and the range."""
-    if isinstance(count, bool) or not isinstance(count, int) or not minimum <= count <= MAX_EPISODES:
-        raise ValueError(f"{flag} must be at least {minimum} and at most {MAX_EPISODES} (an integer; MAX_EPISODES: a "
-                         f"larger run would take months, split it into runs of other seeds), got {count!r}")
-    return count
+# What `evaluate` writes into `EvalConfig.out`.
+REPORT_FILE = "report.json"
+CONFIG_FILE = "eval_config.yaml"
 
 
 def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | None = None,
-            ensemble_decay: float | None = None, wrappers: tuple[str, ...] = ()):
-    """The policy `spec` with these TriVLA inference settings inside the registered policy `wrappers`, loaded once
-    per process."""
+            ensemble_decay: float | None = None, wrappers: tuple[tuple, ...] = ()):
+    """The policy `spec` with these TriVLA inference settings inside the registered policy `wrappers` (each
+    `PluginConfig.key()`), loaded once per process."""
+    from trivla_drake.eval.plugin_config import PluginConfig
     from trivla_drake.eval.policies import load_policy
     from trivla_drake.eval.policy_wrappers import wrap_policy
 
     key = (spec, noise_scale, execute_steps, ensemble_decay, tuple(wrappers))
     if key not in _POLICY_CACHE:
         policy = load_policy(spec, noise_scale, execute_steps=execute_steps, ensemble_decay=ensemble_decay)
-        _POLICY_CACHE[key] = wrap_policy(policy, wrappers)
+        _POLICY_CACHE[key] = wrap_policy(policy, [PluginConfig(name, dict(settings)) for name, settings in wrappers])
     return _POLICY_CACHE[key]
 
 
@@ -261,8 +170,41 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         report["after_prelude_task"] = success_after_prelude_task(episodes)
     if chains:
         report.update(summarize_chains(chains))
-    report["config"] = {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
+    report["config"] = report_config(config)
     return report
+
+
+def report_config(config: EvalConfig) -> dict:
+    """The "config" of `config`'s report: its fields but the tasks (the report's rows name them)."""
+    return {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
+
+
+def write_report(config: EvalConfig, report: dict) -> dict[str, Path]:
+    """Writes `report` as OUT/report.json and `config` as OUT/eval_config.yaml (OUT = `config.out`); their paths."""
+    from trivla_drake.config_io import save_config
+    from trivla_drake.data.durable import atomic_write_text
+
+    out = Path(config.out)
+    files = {"config": out / CONFIG_FILE, "json": out / REPORT_FILE}
+    save_config(config, files["config"])
+    atomic_write_text(files["json"], json.dumps(report, indent=2) + "\n")
+    return files
+
+
+def is_reported(config: EvalConfig) -> bool:
+    """True when `config.out` holds the report of this very config (what `write_report` wrote)."""
+    return bool(config.out) and report_has_config(Path(config.out) / REPORT_FILE, report_config(config))
+
+
+def report_has_config(path: Path, expected: dict) -> bool:
+    """True when the JSON report at `path` exists, reads, and its "config" is `expected` (as JSON reads it back)."""
+    if not path.is_file():
+        return False
+    try:
+        stored = json.loads(path.read_text()).get("config")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return stored == json.loads(json.dumps(expected))
 
 
 def _rate_and_stderr(count: int, n: int) -> tuple[float, float]:
@@ -341,8 +283,24 @@ def success_after_prelude_task(episodes: list[dict]) -> dict[str, dict]:
 
 
 def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
-    """Run the episodes and chains of `config` and return the report (see `summarize`)."""
+    """Run the episodes and chains of `config` and return the report (see `summarize`), also written into
+    `config.out` when set (`write_report`)."""
     config.validate()
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.threads)  # a serial run's; each worker process uses 1
+    try:
+        report = _evaluate(config, progress)
+    finally:
+        torch.set_num_threads(threads)
+    if config.out is not None:
+        write_report(config, report)
+    return report
+
+
+def _evaluate(config: EvalConfig, progress: bool) -> dict:
+    """`evaluate`'s runs and report, in this process's thread setting."""
     _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
     # Drawn as they run, never listed up front: episode i of every task, then i + 1, ...
     jobs = (("episode", name, i) for i in range(config.episodes) for name in config.tasks)

@@ -6,7 +6,7 @@ Checkpoints by role (only `full` is required; a missing role leaves its rows out
   system1_3   trained without System 2            system1   trained without Systems 2 and 3
   data10      Systems 1+2+3 trained on 10% of the demonstrations
 
-With `results_dir` set (the CLI uses OUT/evaluations/), each evaluation (one checkpoint, one seed,
+With `evaluations_dir()` set (by default OUT/evaluations/), each evaluation (one checkpoint, one seed,
 one setting) is stored there as JSON, named by a hash of the checkpoint's files and the settings, and
 written atomically: a killed run, or a later run with another checkpoint added, redoes only what is
 missing, and a retrained checkpoint never reuses stale results.
@@ -14,85 +14,24 @@ missing, and a retrained checkpoint never reuses stale results.
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.eval.evaluate import EVAL_BASE_SEED, EvalConfig, evaluate
-from trivla_drake.tasks.suite import TASK_NAMES
+from trivla_drake.eval.evaluate import EvalConfig, evaluate
+from trivla_drake.eval.tables_config import ROLES, TablesConfig  # noqa: F401  (read from here too)
 
-ROLES = ("full", "system1_3", "system1", "data10")
+# What `write_tables` names the config that made a report.
+CONFIG_FILE = "tables_config.yaml"
 ABLATION_ROWS = (("system1", "1"), ("system1_3", "1+3"), ("full", "1+2+3"))
-
-
-@dataclass
-class TablesConfig:
-    """What `make_tables` runs; every default is the issue's minimum."""
-
-    # Checkpoint directory per role (see the module docstring).
-    checkpoints: dict[str, str] = field(default_factory=dict)
-    # Tasks (all by default).
-    tasks: list[str] = field(default_factory=lambda: list(TASK_NAMES))
-    # Episodes per task and seed.
-    episodes: int = 5
-    # Base seeds: each is a full evaluation, the spread across them is the standard error.
-    seeds: tuple[int, ...] = tuple(EVAL_BASE_SEED + i for i in range(3))
-    # 5-task chains per seed, for Avg. Len.
-    chains: int = 5
-    # Episodes per task for the latency comparison (Drake systems, slower than the harness).
-    latency_episodes: int = 2
-    # Tasks for the latency comparison.
-    latency_tasks: list[str] = field(default_factory=lambda: ["lift_block", "turn_on_light", "open_drawer"])
-    # Processes for the harness.
-    workers: int = 1
-    # Cap on steps per episode (None: each task's own).
-    max_steps: int | None = None
-    # Folder of stored evaluation results to reuse and add to (None: store nothing).
-    results_dir: str | None = None
-    # Every checkpoint's System 1 sampling noise scale (None: 1, the paper's; see EvalConfig).
-    noise_scale: float | None = None
-    # TriVLA replans every this many control steps (None: once per chunk; see EvalConfig.execute_steps).
-    execute_steps: int | None = None
-    # ACT's temporal ensembling of overlapping chunks (None: play the newest; see EvalConfig.ensemble_decay).
-    ensemble_decay: float | None = None
-    # Torch threads of this process (workers use 1 each); part of the storage key when not 1.
-    threads: int = 1
-
-    def validate(self) -> None:
-        from trivla_drake.tasks import get_task
-        from trivla_drake.tasks.suite import check_seed
-
-        if not self.seeds:
-            raise ValueError("--seeds is empty: give one or more comma-separated base seeds, e.g. 1000,1001,1002")
-        for seed in self.seeds:
-            check_seed(seed, "--seeds")  # evaluate's range for its --seed, before anything runs
-        repeated = sorted({seed for seed in self.seeds if self.seeds.count(seed) > 1})
-        if repeated:
-            raise ValueError(f"--seeds names {repeated} more than once (each seed is one sample of the stderr)")
-        for name in [*self.tasks, *self.latency_tasks]:
-            get_task(name)  # ValueError naming the unknown task
-        unknown = sorted(set(self.checkpoints) - set(ROLES))
-        if unknown:
-            raise ValueError(f"checkpoint roles {unknown} are unknown; valid roles: {', '.join(ROLES)}")
-        if "full" not in self.checkpoints:
-            raise ValueError("checkpoints needs a 'full' entry (Systems 1+2+3 on all demonstrations)")
-        for role, path in self.checkpoints.items():
-            if not (Path(path) / "config.json").exists():
-                raise ValueError(f"--{role.replace('_', '-')} {path} is not a checkpoint directory (no config.json)")
-        if self.episodes < 1:
-            raise ValueError(f"--episodes must be at least 1, got {self.episodes}")
-        # TriVLA's inference settings get `evaluate`'s checks (the chunk length is checked when each
-        # checkpoint loads).
-        EvalConfig(policy="trivla", tasks=list(self.tasks), episodes=self.episodes, chains=self.chains,
-                   noise_scale=self.noise_scale,
-                   execute_steps=self.execute_steps, ensemble_decay=self.ensemble_decay).validate()
 
 
 def _mean_stderr(values: list[float]) -> tuple[float, float]:
@@ -120,21 +59,23 @@ def _checkpoint_fingerprint(checkpoint: str) -> str:
 
 
 def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> dict:
-    """compute() once per (checkpoint contents, settings) when `results_dir` is set, else every call."""
-    if config.results_dir is None:
+    """compute() once per (checkpoint contents, settings) when evaluations are stored, else every call."""
+    results_dir = config.evaluations_dir()
+    if results_dir is None:
         return compute()
     # Settings added later are keyed only when they differ from the default, so results stored before
     # they existed still match.
-    if config.noise_scale is not None:
-        settings = {**settings, "noise_scale": float(config.noise_scale)}
-    if config.execute_steps is not None:
-        settings = {**settings, "execute_steps": int(config.execute_steps)}
-    if config.ensemble_decay is not None:
-        settings = {**settings, "ensemble_decay": float(config.ensemble_decay)}
+    inference = config.inference
+    if inference.noise_scale is not None:
+        settings = {**settings, "noise_scale": float(inference.noise_scale)}
+    if inference.execute_steps is not None:
+        settings = {**settings, "execute_steps": int(inference.execute_steps)}
+    if inference.ensemble_decay is not None:
+        settings = {**settings, "ensemble_decay": float(inference.ensemble_decay)}
     if config.threads != 1:  # TriVLA's results depend on torch's thread count (reduction order)
         settings = {**settings, "threads": config.threads}
     key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
-    path = Path(config.results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+    path = Path(results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
     if path.exists():
         try:
             return json.loads(path.read_text())["result"]
@@ -152,8 +93,8 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
     def one_seed(seed: int) -> dict:
         eval_config = EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
                                  chains=chains, paraphrases=paraphrases, workers=config.workers,
-                                 max_steps=config.max_steps, noise_scale=config.noise_scale,
-                                 execute_steps=config.execute_steps, ensemble_decay=config.ensemble_decay)
+                                 max_steps=config.max_steps, inference=copy.deepcopy(config.inference),
+                                 threads=config.threads)
         settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
@@ -191,8 +132,9 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
     from trivla_drake.systems.trivla_policy import PolicyRates
 
     model = load_checkpoint(checkpoint).eval()
-    if config.noise_scale is not None:
-        model.set_initial_noise_scale(config.noise_scale)
+    inference = config.inference
+    if inference.noise_scale is not None:
+        model.set_initial_noise_scale(inference.noise_scale)
     rows = {}
     for label, latency in (("latency off", LatencyModel("zero")), ("latency measured", LatencyModel("measured"))):
         successes, control = [], []
@@ -206,8 +148,8 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
                         "camera_frames": "rendered_at_tick"}
             report = _stored(config, checkpoint, settings, lambda: run_trivla_demo(
                 model, task, episodes=config.latency_episodes, seed=config.seeds[0], latency=latency,
-                max_seconds=max_seconds, execute_steps=config.execute_steps,
-                ensemble_decay=config.ensemble_decay).as_dict())
+                max_seconds=max_seconds, execute_steps=inference.execute_steps,
+                ensemble_decay=inference.ensemble_decay).as_dict())
             successes.append(report["success_rate"])
             control.append(report["control_hz"])
         rows[label] = {"success_rate": float(np.mean(successes)), "control_hz": float(np.mean(control))}
@@ -241,17 +183,18 @@ def format_tables(report: dict) -> str:
     """The report as Markdown tables."""
     main = report["main"]
     cfg = report.get("config", {})
+    inference = cfg.get("inference", cfg)  # reports before issue 74 kept these settings at the top
     lines = []
     if cfg:
         lines += [f"Settings: {cfg['episodes']} episodes per task and seed, seeds {', '.join(map(str, cfg['seeds']))} "
                   f"(each seed's mean is one sample of the stderr), {cfg['chains']} five-task chains per seed, "
                   f"latency rows {cfg['latency_episodes']} episodes on each of {', '.join(cfg['latency_tasks'])}"
-                  + (f", System 1 sampling noise scale {cfg['noise_scale']:g}" if cfg.get("noise_scale") is not None
-                     else "")
-                  + (f", replanning every {cfg['execute_steps']} control steps" if cfg.get("execute_steps") is not None
-                     else "")
-                  + (f", chunks ensembled with decay {cfg['ensemble_decay']:g}" if cfg.get("ensemble_decay") is not None
-                     else "") + ".", ""]
+                  + (f", System 1 sampling noise scale {inference['noise_scale']:g}"
+                     if inference.get("noise_scale") is not None else "")
+                  + (f", replanning every {inference['execute_steps']} control steps"
+                     if inference.get("execute_steps") is not None else "")
+                  + (f", chunks ensembled with decay {inference['ensemble_decay']:g}"
+                     if inference.get("ensemble_decay") is not None else "") + ".", ""]
     data10 = report.get("data10")
     lines += ["## Per-task success (mean ± stderr over seeds)", "",
               "| task | success | held-out paraphrases |" + (" 10% of the demonstrations |" if data10 else ""),
@@ -332,11 +275,17 @@ def plot_tables(report: dict, out_dir: Path) -> list[Path]:
     return paths
 
 
-def write_tables(report: dict, out_dir: str | Path) -> dict[str, Path]:
-    """Write report.json, report.md and the plots into `out_dir`."""
+def write_tables(report: dict, out_dir: str | Path, config: TablesConfig | None = None) -> dict[str, Path]:
+    """Write report.json, report.md, the plots and (given the `config` that made the report) tables_config.yaml
+    into `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"json": out_dir / "report.json", "markdown": out_dir / "report.md"}
+    if config is not None:
+        from trivla_drake.config_io import save_config
+
+        files["config"] = out_dir / CONFIG_FILE
+        save_config(config, files["config"])
     files["json"].write_text(json.dumps(report, indent=2))
     files["markdown"].write_text(format_tables(report) + "\n")
     for path in plot_tables(report, out_dir):

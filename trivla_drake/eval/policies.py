@@ -89,8 +89,8 @@ def load_policy(
 ) -> Policy:
     """'oracle', 'random', 'trivla' (the shipped checkpoint, models/trivla_cpu), or a checkpoint directory.
     `noise_scale`, `execute_steps`, `ensemble_decay` (TriVLA only): see load_checkpoint_policy."""
-    for field, value in (("--noise-scale", noise_scale), ("--execute-steps", execute_steps),
-                         ("--ensemble-decay", ensemble_decay)):
+    for field, value in (("inference.noise_scale", noise_scale), ("inference.execute_steps", execute_steps),
+                         ("inference.ensemble_decay", ensemble_decay)):
         if value is not None and spec in ("oracle", "random"):
             raise ValueError(f"{field} applies to TriVLA checkpoints only, not to --policy {spec}")
     settings = dict(execute_steps=execute_steps, ensemble_decay=ensemble_decay)

@@ -1,35 +1,40 @@
-"""The policy-wrapper registry: wrappers around a `Policy` (reset / act) that change how it is run, applied by
-name (`EvalConfig.policy_wrappers`, `wrap_policy`).
+"""The policy-wrapper registry: wrappers around a `Policy` (reset / act) that change how it is run, named with their
+settings in a config (`EvalConfig.policy_wrappers`, a list of PluginConfig) and applied by `wrap_policy`.
 
     @register_policy_wrapper("name")
-    def make_mine(policy) -> Policy: ...
+    def make_mine(policy, **settings) -> Policy: ...
 
-Registered here: "home_first" (eval/home_first.py, `evaluate --home-first`)."""
+Registered here: "home_first" (eval/home_first.py; `evaluate --set 'policy_wrappers=[{name: home_first}]'`)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+from trivla_drake.eval.plugin_config import PluginConfig
 from trivla_drake.eval.registry import Registry
 
 POLICY_WRAPPERS = Registry("policy wrapper")
 
 
 def register_policy_wrapper(name: str):
-    """A decorator registering a factory `factory(policy) -> Policy` under `name`."""
+    """A decorator registering a factory `factory(policy, **settings) -> Policy` under `name`."""
     return POLICY_WRAPPERS.register(name)
 
 
-def check_policy_wrappers(names: Sequence[str]) -> None:
-    """ValueError naming the registered wrappers if one of `names` is not registered."""
-    for name in names:
-        POLICY_WRAPPERS.check(name)
+def check_policy_wrappers(wrappers: Sequence[PluginConfig], field: str = "policy_wrappers") -> None:
+    """ValueError naming `field` and the registered wrappers if one of `wrappers` is not registered."""
+    for index, wrapper in enumerate(wrappers):
+        try:
+            POLICY_WRAPPERS.check(wrapper.name)
+        except ValueError as error:
+            raise ValueError(f"{field}[{index}].name: {error}") from None
 
 
-def wrap_policy(policy, names: Sequence[str]):
-    """`policy` inside the wrappers `names`, the first innermost; ValueError for an unknown name."""
-    for name in names:
-        policy = POLICY_WRAPPERS.make(name, policy)
+def wrap_policy(policy, wrappers: Sequence[PluginConfig]):
+    """`policy` inside `wrappers` (each made with its settings), the first innermost; ValueError for an unknown
+    name."""
+    for wrapper in wrappers:
+        policy = POLICY_WRAPPERS.make(wrapper.name, policy, **wrapper.settings)
     return policy
 
 

@@ -1,6 +1,7 @@
 """Training checkpoints: a model checkpoint (`trivla_drake.nn.save_checkpoint`: model.safetensors +
 config.json, loadable by `load_checkpoint`) plus training_state.pt (optimizer, step, every rank's RNG
-states) and train_config.json (the full `TrainConfig`).
+states) and train_config.yaml (the full `TrainConfig`; a checkpoint of before the nested config has a flat
+train_config.json instead, which still reads).
 
 Atomicity: a checkpoint is written into a hidden temporary folder next to its final place, its files
 are flushed to disk, and the folder is renamed into place. A folder named `step-XXXXXXXX` is therefore
@@ -12,6 +13,7 @@ always complete; a killed run leaves at most a `.tmp-*` folder, which is ignored
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -20,7 +22,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import yaml
 
+from trivla_drake.config_io import save_config
+from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.nn.checkpoint import save_checkpoint
 from trivla_drake.train.atomic_folder import atomic_folder
 from trivla_drake.train.config import TrainConfig
@@ -28,7 +33,8 @@ from trivla_drake.train.config import TrainConfig
 CHECKPOINTS_DIR = "checkpoints"
 FINAL_DIR = "final"
 STATE_FILE = "training_state.pt"
-TRAIN_CONFIG_FILE = "train_config.json"
+TRAIN_CONFIG_FILE = "train_config.yaml"
+FLAT_TRAIN_CONFIG_FILE = "train_config.json"  # checkpoints written before the nested TrainConfig
 STEP_FILE = "step.json"  # {"step": N}: read without loading the optimizer state
 _STEP_DIR = re.compile(r"^step-(\d{8})$")
 
@@ -60,7 +66,7 @@ def write_checkpoint(
         save_checkpoint(model, str(tmp))
         torch.save(train_state, tmp / STATE_FILE)
         (tmp / STEP_FILE).write_text(json.dumps({"step": int(train_state["step"])}))
-        config.save(str(tmp / TRAIN_CONFIG_FILE))
+        write_config_yaml(config, tmp / TRAIN_CONFIG_FILE)
 
     return write_folder_atomically(target, fill)
 
@@ -76,18 +82,33 @@ def export_checkpoint(
     *,
     weights_dtype: str = "float16",
     drop_unused_llm_layers: bool = False,
+    job_config: tuple[str, Any] | None = None,
 ) -> Path:
     """Writes the model of checkpoint `source` (no optimizer state) to `target` atomically, its weights in
     `weights_dtype` (float16: half the size, e.g. the shipped models/trivla_cpu). With
     `drop_unused_llm_layers`, System 2's LLM keeps only the layers up to its read-out layer: the same
     Q_vl and actions, a smaller file, but no longer a start for the vlm stage. An existing `target`
-    is replaced only once the new one is complete."""
+    is replaced only once the new one is complete. `job_config` (file name, config): the job's config, written into
+    the folder as YAML beside the model."""
     from trivla_drake.nn.checkpoint import load_checkpoint
 
     model = load_checkpoint(str(source))
     if drop_unused_llm_layers and model.vision_language is not None:
         model.vision_language.drop_layers_above_readout()
-    return write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
+    return write_model_folder(target, model, weights_dtype=weights_dtype, job_config=job_config)
+
+
+def write_model_folder(target: str | os.PathLike, model: torch.nn.Module, *, weights_dtype: str,
+                       job_config: tuple[str, Any] | None = None) -> Path:
+    """Writes `model` (config.json + weights in `weights_dtype`) and, if given, `job_config` (file name, the config
+    of the job that made it, as YAML) to the folder `target`, atomically."""
+
+    def fill(tmp: Path) -> None:
+        save_checkpoint(model, str(tmp), weights_dtype=weights_dtype)
+        if job_config is not None:
+            write_config_yaml(job_config[1], tmp / job_config[0])
+
+    return write_folder_atomically(target, fill)
 
 
 def list_checkpoints(out: str | os.PathLike) -> list[tuple[int, Path]]:
@@ -209,12 +230,29 @@ def load_train_state(directory: str | os.PathLike) -> dict[str, Any]:
     return state
 
 
+def write_config_yaml(config, path: str | os.PathLike) -> None:
+    """Writes the config dataclass `config` as YAML (`config_io.save_config`, loadable with `--config`). Where Drake is not installed (a
+    training machine may lack it) PyYAML writes the same fields, which `load_train_config` and Drake read alike."""
+    try:
+        import pydrake.common.yaml  # noqa: F401 - only whether it is there
+    except ModuleNotFoundError:
+        schema = type(config)
+        atomic_write_text(path, f"# {schema.__module__}.{schema.__qualname__}\n"
+                                + yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+        return
+    save_config(config, path)
+
+
 def load_train_config(directory: str | os.PathLike) -> TrainConfig:
-    """train_config.json of a checkpoint."""
+    """The training config a checkpoint (or a run folder) holds: train_config.yaml, else the flat train_config.json
+    of a checkpoint written before the nested config."""
     path = Path(directory) / TRAIN_CONFIG_FILE
+    if not path.is_file() and (Path(directory) / FLAT_TRAIN_CONFIG_FILE).is_file():
+        path = Path(directory) / FLAT_TRAIN_CONFIG_FILE
     if not path.is_file():
         raise ValueError(f"{directory} is not a training checkpoint: {TRAIN_CONFIG_FILE} is missing")
     try:
-        return TrainConfig.from_dict(json.loads(path.read_text()))
-    except (ValueError, TypeError) as exc:
+        data = yaml.safe_load(path.read_text())  # JSON is YAML
+        return TrainConfig.from_dict(data if data is not None else {})
+    except (ValueError, TypeError, yaml.YAMLError) as exc:
         raise ValueError(f"{path} is unreadable: {exc}") from exc

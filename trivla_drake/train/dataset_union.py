@@ -1,4 +1,4 @@
-"""Training the policy stage on several LeRobot datasets at once (`--data A --extra-data B ...`).
+"""Training the policy stage on several LeRobot datasets at once (`data` A, `extra_data` [B, ...]).
 
 - `episode_content_key`: what an episode is, without where it lies in its folder (its index, its file and
   frame offsets): two folders collected with the same seed hold equal episodes under different indices. It
@@ -87,12 +87,12 @@ def drop_repeated_episodes(readers: list[LeRobotReader], episodes: list[list[int
 
 
 def check_each_folder_adds(readers: list[LeRobotReader], kept: list[list[int]]) -> None:
-    """Raises ValueError naming an --extra-data folder none of whose chosen episodes is new (all held by an
+    """Raises ValueError naming an extra_data folder none of whose chosen episodes is new (all held by an
     earlier folder): most likely a copy of --data, given by mistake."""
     for reader, episodes in zip(readers[1:], kept[1:]):
         if not episodes:
-            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} adds no episode that --data "
-                             f"{readers[0].root} or an earlier --extra-data folder does not already hold")
+            raise ValueError(f"extra_data: dataset {reader.root} adds no episode that --data "
+                             f"{readers[0].root} or an earlier extra_data folder does not already hold")
 
 
 def check_same_features(readers: list[LeRobotReader]) -> None:
@@ -108,7 +108,7 @@ def check_same_features(readers: list[LeRobotReader]) -> None:
             detail = "; ".join(part for part in (
                 f"has {sorted(mine - first)} that --data lacks" if mine - first else "",
                 f"lacks {sorted(first - mine)}" if first - mine else "") if part)
-            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} {detail} (--data "
+            raise ValueError(f"extra_data: dataset {reader.root} {detail} (--data "
                              f"{readers[0].root}); train together only folders recorded with the same fields")
 
 
@@ -118,7 +118,7 @@ def check_same_fps(readers: list[LeRobotReader]) -> None:
     first = readers[0]
     for reader in readers[1:]:
         if float(reader.fps) != float(first.fps):
-            raise ValueError(f"extra_data (--extra-data): dataset {reader.root} is recorded at {reader.fps} fps "
+            raise ValueError(f"extra_data: dataset {reader.root} is recorded at {reader.fps} fps "
                              f"but --data {first.root} at {first.fps} fps; the action chunks would mean other times")
 
 

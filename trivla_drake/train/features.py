@@ -17,7 +17,7 @@ System 2 draws no noise, so System 3's outputs do not depend on it: every model 
 weights and settings has the same System 3 features. Each folder's cache_info.json records
 `dynamics_key` (System 3's weights and settings alone), and a missing shard whose episode another
 folder with that key holds (a lender) is not computed in full:
-- an ablation arm without System 2 (`--no-system2`) reads the lender's shard as it is
+- an ablation arm without System 2 (use_system2 false) reads the lender's shard as it is
   (`feature_shards_borrowed` in the summary);
 - a model with System 2 (a retrained System 2 on the same System 3) computes System 2's Q_vl only
   and writes a shard of its own with the lender's System 3 tensors copied in
@@ -93,10 +93,10 @@ class FeatureKeys:
     def __init__(self, model: TriVLA, config: TrainConfig):
         common = {
             "image_size": model.image_size,
-            "feature_stride": config.feature_stride,
-            "feature_dtype": config.feature_dtype,
-            "feature_seed": config.feature_seed,
-            "feature_batch_size": config.feature_batch_size,
+            "feature_stride": config.features.stride,
+            "feature_dtype": config.features.dtype,
+            "feature_seed": config.features.seed,
+            "feature_batch_size": config.features.batch_size,
             "static_camera": config.static_camera,
             "wrist_camera": config.wrist_camera,
         }
@@ -148,7 +148,7 @@ def compute_episode_features(
     """System 2 and 3 outputs for every `feature_stride`-th frame of one episode (see module doc);
     with `dynamics_from`, a lender's shard of this episode, its System 3 tensors instead of System 3's."""
     length = int(reader.episodes[episode]["length"])
-    frames_index = np.arange(0, length, config.feature_stride)
+    frames_index = np.arange(0, length, config.features.stride)
     lent: dict[str, torch.Tensor] = {}
     if dynamics_from is not None:
         from safetensors import safe_open
@@ -160,13 +160,13 @@ def compute_episode_features(
     static = resize_frames(reader.episode_video(episode, config.static_camera)[frames_index], model.image_size)
     wrist = resize_frames(reader.episode_video(episode, config.wrist_camera)[frames_index], model.image_size)
     instruction = reader.task_of(episode)
-    dtype = _DTYPES[config.feature_dtype]
+    dtype = _DTYPES[config.features.dtype]
     # Seeded from the metadata alone, as before the cache was keyed by content: "random" noise draws the same.
-    generator = torch.Generator().manual_seed(_episode_seed(config.feature_seed, episode_fingerprint(reader, episode)))
+    generator = torch.Generator().manual_seed(_episode_seed(config.features.seed, episode_fingerprint(reader, episode)))
     parts: dict[str, list[torch.Tensor]] = {}
-    for start in range(0, len(frames_index), config.feature_batch_size):
-        s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.feature_batch_size]))
-        w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.feature_batch_size]))
+    for start in range(0, len(frames_index), config.features.batch_size):
+        s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.features.batch_size]))
+        w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.features.batch_size]))
         texts = [instruction] * len(s)
         if model.vision_language is not None:
             q_vl, mask = model.encode_vision_language_batch(s, w, texts)
@@ -184,7 +184,7 @@ def compute_episode_features(
         if not torch.isfinite(converted).all():
             raise ValueError(
                 f"System {'2' if key == 'q_vl' else '3'} features of episode {episode} overflow "
-                f"{config.feature_dtype}: use feature_dtype float32 (--feature-dtype float32)"
+                f"{config.features.dtype}: use features.dtype float32 (--set features.dtype=float32)"
             )
         out[key] = converted.contiguous()
     out.update(lent)
@@ -258,13 +258,13 @@ def ensure_feature_cache(
             "system3": model.dynamics is not None,
             "dynamics_key": dynamics_key,
             "lenders": lenders,
-            "feature_stride": config.feature_stride,
-            "feature_dtype": config.feature_dtype,
-            "feature_seed": config.feature_seed,
+            "feature_stride": config.features.stride,
+            "feature_dtype": config.features.dtype,
+            "feature_seed": config.features.seed,
             "image_size": model.image_size,
         }
         info_path = root / "cache_info.json"
-        try:  # another folder of the same run (--extra-data) may have lent shards to this cache too
+        try:  # another folder of the same run (extra_data) may have lent shards to this cache too
             earlier = json.loads(info_path.read_text()) if info_path.is_file() else {}
         except ValueError:
             earlier = {}
@@ -286,7 +286,7 @@ def ensure_feature_cache(
     env.barrier()
     sample = [e for e in episodes if shards[e].parent == root][:50]  # lent shards hold Q_vl too: not counted
     total_bytes = sum(shards[e].stat().st_size for e in sample)
-    cached_frames = sum(-(-int(reader.episodes[e]["length"]) // config.feature_stride) for e in sample)
+    cached_frames = sum(-(-int(reader.episodes[e]["length"]) // config.features.stride) for e in sample)
     summary = {
         "feature_cache": str(root),
         "feature_cache_lenders": lenders,

@@ -24,13 +24,13 @@ GROUNDING_CARRY_TASKS = ("stack_block", "place_in_bowl", "unstack_block", "rotat
 @dataclass
 class GroundingSamples:
     """Precomputed grounding inputs and labels: Q_vl float16 (N, S, D) right-padded with its mask (N, S),
-    states (N, 18), sub-goal positions (N, 3) [m] and yaw features (N, 2), and each sample's task."""
+    states (N, 18), sub-goal positions (N, 3) [m], and each sample's task (the yaw labels went with the
+    experiments: the read-out's loss is on the position)."""
 
     q_vl: torch.Tensor
     q_vl_mask: torch.Tensor
     state: torch.Tensor
     subgoal_position: torch.Tensor
-    subgoal_yaw: torch.Tensor
     tasks: list[str]
 
     def __len__(self) -> int:
@@ -43,7 +43,6 @@ class GroundingSamples:
             "q_vl": torch.nn.functional.pad(self.q_vl[rows].float(), (0, 0, 0, pad)),
             "q_vl_mask": torch.nn.functional.pad(self.q_vl_mask[rows], (0, pad)),
             "state": self.state[rows], "subgoal_position": self.subgoal_position[rows],
-            "subgoal_yaw": self.subgoal_yaw[rows],
         }
 
 
@@ -83,7 +82,7 @@ def scene_samples(model, scenes, *, batch_size: int = 32, progress: bool = True)
         sequences += _encode(model, scenes.static[sl], scenes.wrist[sl], scenes.instructions[sl], batch_size)
     q_vl, mask = _padded(sequences)
     return GroundingSamples(q_vl, mask, torch.from_numpy(scenes.state.copy()),
-                            torch.from_numpy(scenes.subgoal_position.copy()), torch.from_numpy(scenes.subgoal_yaw.copy()),
+                            torch.from_numpy(scenes.subgoal_position.copy()),
                             list(scenes.tasks))
 
 
@@ -103,7 +102,7 @@ def dataset_samples(model, reader, *, stride: int, static_camera: str, wrist_cam
     samples = TrainingSamples(reader, history=1, future_frames=0, cameras=[], cache_episodes=1,
                               grounding_carry_tasks=tuple(carry_tasks))
     starts = np.concatenate([[0], np.cumsum([int(e["length"]) for e in reader.episodes])])
-    sequences, states, positions, yaws, tasks = [], [], [], [], []
+    sequences, states, positions, tasks = [], [], [], []
     for episode in tqdm(range(reader.num_episodes), desc="System 2 on grounding frames", unit="episode",
                         disable=not progress):
         frames = np.flatnonzero(samples.grounding_frames(episode))[::stride]
@@ -115,14 +114,13 @@ def dataset_samples(model, reader, *, stride: int, static_camera: str, wrist_cam
         sequences += _encode(model, static, wrist, [reader.task_of(episode)] * len(frames), batch_size)
         states.append(np.stack([np.asarray(x[STATE_KEY][-1], dtype=np.float32) for x in labelled]))
         positions.append(np.stack([x["subgoal_position"] for x in labelled]))
-        yaws.append(np.stack([x["subgoal_yaw"] for x in labelled]))
         tasks += [str(reader.episodes[episode].get("trivla/task") or reader.task_of(episode))] * len(frames)
     if not sequences:
         raise ValueError(f"the dataset at {reader.root} has no grounding frames (none before a gripper change)")
     q_vl, mask = _padded(sequences)
     return GroundingSamples(q_vl, mask, torch.from_numpy(np.concatenate(states)),
                             torch.from_numpy(np.concatenate(positions).astype(np.float32)),
-                            torch.from_numpy(np.concatenate(yaws).astype(np.float32)), tasks)
+                            tasks)
 
 
 def readout_parameters(model) -> dict[str, torch.nn.Parameter]:
@@ -219,7 +217,7 @@ def save_samples(samples: GroundingSamples, path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")
     torch.save({"format": 1, "q_vl": samples.q_vl, "q_vl_mask": samples.q_vl_mask, "state": samples.state,
-                "subgoal_position": samples.subgoal_position, "subgoal_yaw": samples.subgoal_yaw,
+                "subgoal_position": samples.subgoal_position,
                 "tasks": list(samples.tasks)}, tmp)
     os.replace(tmp, path)
 
@@ -234,4 +232,4 @@ def load_samples(path) -> GroundingSamples:
     if not isinstance(saved, dict) or saved.get("format") != 1:
         raise ValueError(f"{path} holds no saved grounding samples of format 1; delete it and it is computed again")
     return GroundingSamples(saved["q_vl"], saved["q_vl_mask"], saved["state"], saved["subgoal_position"],
-                            saved["subgoal_yaw"], list(saved["tasks"]))
+                            list(saved["tasks"]))  # (a file of before also holds yaw labels: unused)

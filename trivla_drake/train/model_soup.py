@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -62,11 +63,12 @@ def soup_checkpoints(
     *,
     weights_dtype: str = "float16",
     drop_unused_llm_layers: bool = False,
+    job_config: tuple[str, Any] | None = None,
 ) -> Path:
     """Writes the soup of checkpoints `sources` (same config.json, e.g. runs' final/ folders) to `target`
-    atomically, as `export_checkpoint` writes one model."""
-    from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
-    from trivla_drake.train.checkpoints import write_folder_atomically
+    atomically, as `export_checkpoint` writes one model (`job_config`: as there)."""
+    from trivla_drake.nn.checkpoint import load_checkpoint
+    from trivla_drake.train.checkpoints import write_model_folder
 
     paths = [Path(source) for source in sources]
     if len(paths) < 2:
@@ -88,4 +90,4 @@ def soup_checkpoints(
     model.load_state_dict(averaged)
     if drop_unused_llm_layers and model.vision_language is not None:
         model.vision_language.drop_layers_above_readout()
-    return write_folder_atomically(target, lambda tmp: save_checkpoint(model, str(tmp), weights_dtype=weights_dtype))
+    return write_model_folder(target, model, weights_dtype=weights_dtype, job_config=job_config)

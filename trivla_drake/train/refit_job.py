@@ -154,10 +154,9 @@ def run_refit(config: RefitConfig, *, progress: bool = True) -> dict:
     from trivla_drake.data.durable import atomic_write_text
     from trivla_drake.data.lerobot import LeRobotReader
     from trivla_drake.nn import load_checkpoint
-    from trivla_drake.nn.checkpoint import save_checkpoint
     from trivla_drake.train.atomic_folder import check_replaceable_folder
-    from trivla_drake.train.checkpoints import write_folder_atomically
-    from trivla_drake.train.cli_commands import holds_model_export
+    from trivla_drake.train.checkpoints import write_model_folder
+    from trivla_drake.train.export_job import REFIT_CONFIG_FILE, holds_model_export
 
     check_refit_config(config)
     check_replaceable_folder(config.out, flag="out", holds_earlier_output=holds_model_export,
@@ -191,8 +190,8 @@ def run_refit(config: RefitConfig, *, progress: bool = True) -> dict:
         before, before_z = errors()
         curve = refit.refit_readout(model, scenes, frames, steps=config.steps, lr=config.lr, progress=progress)
         after, after_z = errors()
-        write_folder_atomically(config.out, lambda tmp: save_checkpoint(model, str(tmp),
-                                                                        weights_dtype=config.weights_dtype))
+        write_model_folder(config.out, model, weights_dtype=config.weights_dtype,
+                           job_config=(REFIT_CONFIG_FILE, config))
     finally:
         torch.set_num_threads(threads)
     report = {"config": asdict(config),

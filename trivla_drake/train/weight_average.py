@@ -1,4 +1,4 @@
-"""An exponential moving average of the trained weights (`train --ema-decay`), as diffusion and
+"""An exponential moving average of the trained weights (TrainConfig.ema_decay), as diffusion and
 flow-matching policies are usually evaluated (Diffusion Policy, Chi et al. 2023): the average of the
 last ~1/(1 - decay) steps' weights is smoother than the last step's.
 
@@ -44,7 +44,7 @@ class WeightAverage:
 
     def state_dict(self) -> dict:
         """The average, the trained weights and the update count (for a resumable checkpoint)."""
-        return {  # the decay is the run's train_config.json's, which a resume may not change
+        return {  # the decay is the run's train_config.yaml's, which a resume may not change
             "updates": self.updates,
             "average": {k: v.detach().cpu().clone() for k, v in self.average.items()},
             "trained": {k: p.detach().cpu().clone() for k, p in self.params.items()},

@@ -1,0 +1,67 @@
+"""recipes/trivla_cpu.yaml, the shipped model's recipe: loads typed, every stage's kind registered, the plan ends in
+the shipped model and its tables; and the copy_dataset kind its extended datasets start from."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from trivla_drake.config_io import ConfigError
+from trivla_drake.data.dataset_copy import DatasetCopyConfig, copy_dataset, dataset_copy_done
+from trivla_drake.recipe import load_recipe, run_recipe
+from trivla_drake.recipe_kinds import register_all
+
+RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "trivla_cpu.yaml"
+
+
+@pytest.fixture(scope="module")
+def recipe():
+    register_all()
+    return load_recipe(RECIPE)
+
+
+def test_the_recipe_loads_typed_with_every_kind_registered(recipe):
+    kinds = [stage.kind for stage in recipe.stages]
+    assert set(kinds) == {"collect", "copy_dataset", "train", "export", "soup", "refit", "tables"}
+    assert kinds.count("train") == 25 and kinds.count("collect") == 10
+    names = [stage.name for stage in recipe.stages]
+    refit = recipe.stages[names.index("refit")]
+    assert refit.config.out == "${workdir}/models/trivla_cpu" and refit.config.scenes == 12000
+    assert recipe.stages[-1].kind == "tables" and recipe.stages[-1].config.checkpoints["full"] == refit.config.out
+
+
+def test_the_dry_run_plans_every_stage_and_runs_nothing(recipe, tmp_path, capsys):
+    recipe.workdir = str(tmp_path / "run")
+    statuses = run_recipe(recipe, dry_run=True)
+    assert list(statuses) == [stage.name for stage in recipe.stages]
+    assert set(statuses.values()) == {"pending"}
+    plan = capsys.readouterr().out
+    assert "trivla-drake refit " + str(tmp_path / "run" / "runs" / "soup3") in plan
+    assert "--set perturbation.name=dart" in plan and "policy.grounding.phase=bind" in plan
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_typo_in_a_stage_names_the_stage_and_the_field(tmp_path):
+    register_all()
+    text = RECIPE.read_text().replace("episodes_per_task: 20", "episodes_per_tsk: 20", 1)
+    (tmp_path / "bad.yaml").write_text(text)
+    with pytest.raises(ConfigError, match="clean240.*episodes_per_tsk"):
+        load_recipe(tmp_path / "bad.yaml")
+
+
+def test_copy_dataset_copies_once_and_never_touches_an_existing_copy(tmp_path):
+    from trivla_drake.train.synthetic import write_synthetic_dataset
+
+    tiny_dataset = write_synthetic_dataset(tmp_path / "data", episodes=1, length=4, image_size=16)
+    config = DatasetCopyConfig(source=str(tiny_dataset), dest=str(tmp_path / "copy"))
+    assert not dataset_copy_done(config)
+    copy_dataset(config)
+    assert dataset_copy_done(config)
+    info = json.loads((tmp_path / "copy" / "meta" / "info.json").read_text())
+    assert info == json.loads((Path(tiny_dataset) / "meta" / "info.json").read_text())
+    (tmp_path / "copy" / "extended").write_text("later stages extend the copy")
+    with pytest.raises(ValueError, match="DatasetCopyConfig.dest .* exists already"):
+        copy_dataset(config)
+    assert (tmp_path / "copy" / "extended").read_text() == "later stages extend the copy"
+    with pytest.raises(ValueError, match="not a LeRobot dataset|info.json"):
+        copy_dataset(DatasetCopyConfig(source=str(tmp_path / "nowhere"), dest=str(tmp_path / "c2")))
