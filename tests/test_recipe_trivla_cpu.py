@@ -23,7 +23,7 @@ def recipe():
 def test_the_recipe_loads_typed_with_every_kind_registered(recipe):
     kinds = [stage.kind for stage in recipe.stages]
     assert set(kinds) == {"collect", "copy_dataset", "train", "export", "soup", "refit", "tables"}
-    assert kinds.count("train") == 25 and kinds.count("collect") == 10
+    assert kinds.count("train") == 25 and kinds.count("collect") == 9
     names = [stage.name for stage in recipe.stages]
     refit = recipe.stages[names.index("refit")]
     assert refit.config.out == "${workdir}/models/trivla_cpu" and refit.config.scenes == 12000
