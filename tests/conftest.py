@@ -83,7 +83,7 @@ def saved(tmp_path_factory):
     """(model, directory): an untrained tiny TriVLA with normalisation statistics, saved in float32.
     Tests copy the directory before damaging it."""
     from trivla_drake.nn.checkpoint import save_checkpoint
-    from trivla_drake.nn.config import make_config
+    from trivla_drake.nn.presets import make_config
     from trivla_drake.nn.normalization import NormalizationStats
     from trivla_drake.nn.trivla import TriVLA
     import torch

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trivla_drake.data.lerobot import PERTURBED_FRAMES_KEY, LeRobotReader, LeRobotWriter, vector_feature
+from trivla_drake.data.lerobot_format import PERTURBED_FRAMES_KEY, vector_feature
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.data.samples import TrainingSamples, perturbed_counts
 from trivla_drake.eval.action_noise import PerturbationBursts
 from trivla_drake.eval.plugin_config import PluginConfig

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trivla_drake.data.lerobot import PRELUDE_KEY, LeRobotReader
+from trivla_drake.data.lerobot_format import PRELUDE_KEY
+from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.tasks.chains import prelude_task
 from trivla_drake.tasks.scene import Layout, sample_scene, scene_from_spec
 

@@ -53,7 +53,7 @@ def test_unknown_weights_dtype_names_the_field(saved, tmp_path):
 
 
 def test_export_can_drop_the_llm_layers_above_the_readout_and_keeps_q_vl(tmp_path):
-    from trivla_drake.nn.config import make_config
+    from trivla_drake.nn.presets import make_config
     from trivla_drake.nn.trivla import TriVLA
 
     config = make_config("tiny", init_seed=4)

@@ -14,8 +14,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from trivla_drake.data import lerobot
-from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, NotADatasetError, vector_feature, video_feature
+from trivla_drake.data import lerobot_writer
+from trivla_drake.data.lerobot_format import NotADatasetError, vector_feature, video_feature
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.data.samples import TrainingSamples
 
 FPS = 36.0
@@ -105,7 +107,7 @@ def test_not_a_dataset_is_a_clear_error(tmp_path):
 def test_a_crash_before_the_commit_loses_only_that_episode(tmp_path, monkeypatch):
     root = tmp_path / "ds"
     _write(root, [5, 6], ["a", "b"])
-    real = lerobot._atomic_write_table
+    real = lerobot_writer._atomic_write_table
 
     def crash_on_commit(path, table):
         if "meta/episodes" in str(path):
@@ -113,11 +115,11 @@ def test_a_crash_before_the_commit_loses_only_that_episode(tmp_path, monkeypatch
         real(path, table)
 
     writer = LeRobotWriter(root, fps=FPS, features=FEATURES)
-    monkeypatch.setattr(lerobot, "_atomic_write_table", crash_on_commit)
+    monkeypatch.setattr(lerobot_writer, "_atomic_write_table", crash_on_commit)
     frames, video = _episode(9, 7)
     with pytest.raises(KeyboardInterrupt):
         writer.add_episode(frames, "new task", videos={"observation.images.static": video})
-    monkeypatch.setattr(lerobot, "_atomic_write_table", real)
+    monkeypatch.setattr(lerobot_writer, "_atomic_write_table", real)
     reader = LeRobotReader(root)
     assert reader.num_episodes == 2 and reader.num_frames == 11
     assert reader.episode_frames(1)["action"].shape == (6, 7)
@@ -206,7 +208,7 @@ def test_collected_episode_rows_share_one_schema(tmp_path):
     the folder reads as one table; before, a fixture task's empty params were list<null> beside list<string>."""
     import pyarrow.dataset as ds
 
-    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, EPISODE_COLUMN_TYPES
+    from trivla_drake.data.lerobot_format import EPISODE_COLUMN_DEFAULTS, EPISODE_COLUMN_TYPES
     from trivla_drake.eval.collect import CollectConfig, collect
 
     out = tmp_path / "mixed"
@@ -223,7 +225,7 @@ def test_collected_episode_rows_share_one_schema(tmp_path):
     for key, default in EPISODE_COLUMN_DEFAULTS.items():
         assert all(r[key] == default for r in rows), key
     # The columns of removed collection experiments are no longer written.
-    from trivla_drake.data.lerobot import REMOVED_EPISODE_COLUMNS
+    from trivla_drake.data.lerobot_format import REMOVED_EPISODE_COLUMNS
 
     assert not set(REMOVED_EPISODE_COLUMNS) & set(table.schema.names)
 
@@ -234,7 +236,7 @@ def test_rows_without_the_removed_experiment_columns_keep_their_episode_keys():
     stays as it was; the union's content keys match old and new rows."""
     from types import SimpleNamespace
 
-    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS, REMOVED_EPISODE_COLUMNS, with_removed_columns
+    from trivla_drake.data.lerobot_format import EPISODE_COLUMN_DEFAULTS, REMOVED_EPISODE_COLUMNS, with_removed_columns
     from trivla_drake.train.dataset_union import episode_row_key
     from trivla_drake.train.datasets import episode_fingerprint
 

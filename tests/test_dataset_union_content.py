@@ -1,4 +1,4 @@
-"""`train --extra-data` keys repeated episodes by what they hold: the same episode at another index in another
+"""`train`'s extra_data keys repeated episodes by what they hold: the same episode at another index in another
 folder is one episode, and an episode file replaced (its checksums recorded again, its metadata row left as it
 was) is not mistaken for the episode it replaced."""
 
@@ -13,7 +13,8 @@ import pytest
 
 from trivla_drake.data import checksums
 from trivla_drake.data.checksums import DatasetCorruptError
-from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.train.dataset_union import drop_repeated_episodes, episode_content_key
 from trivla_drake.train.synthetic import CAMERAS, TASKS, synthetic_features
 

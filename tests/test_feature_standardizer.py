@@ -6,13 +6,13 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.feature_standardizer import (
     STD_FLOOR_FRACTION,
     FeatureStandardizer,
     MomentAccumulator,
     SequenceStandardizer,
 )
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 

@@ -12,9 +12,9 @@ import torch
 
 from trivla_drake.config_io import with_flags
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding
 from trivla_drake.nn.panda_gripper import MAX_GRIPPER_WIDTH, gripper_closure, holding_block
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.model_setup import apply_ablations

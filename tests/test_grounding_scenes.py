@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from trivla_drake.nn.config import make_config
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.robot.panda_ik import solve_ik
 from trivla_drake.robot.panda_kinematics import PandaKinematics
@@ -201,7 +201,7 @@ def test_saved_samples_load_back_and_a_broken_file_is_named(tmp_path):
 
 
 def test_dataset_samples_are_the_grounding_frames_with_their_labels(tmp_path):
-    from trivla_drake.data.lerobot import LeRobotReader
+    from trivla_drake.data.lerobot_reader import LeRobotReader
     from trivla_drake.data.samples import TrainingSamples
     from trivla_drake.train.synthetic import write_synthetic_dataset
 

@@ -134,7 +134,7 @@ def test_it_holds_the_commanded_home_until_the_measured_arm_is_there_and_still()
     near[0, 3] += 0.5 * SETTLED_M
     policy.act(_observation(home, measured=near, joint_speed=0.5 * SETTLED_SPEED / np.sqrt(7)))
     assert policy.policy.calls == 1
-    # The first version (kept to reproduce results/home_first/) handed over with the arm still on its way.
+    # The first version (kept to reproduce research/home_first/) handed over with the arm still on its way.
     first = HomeFirst(Holding(), settle=False)
     first.reset("lift the red block", 0)
     first.act(_observation(home, measured=lagging, joint_speed=0.5, time=0.0))

@@ -10,9 +10,9 @@ import torch
 from trivla_drake.data.samples import TrainingSamples
 from trivla_drake.data.subgoals import approach_frames, carry_frames, next_gripper_event_positions
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.instruction_grounding import InstructionGrounding, grounding_loss
 from trivla_drake.nn.panda_tcp import normalize_position
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
@@ -50,7 +50,8 @@ def test_carry_frames_run_from_the_last_grasp_to_the_release():
 
 
 def test_training_samples_add_the_carry_frames_of_the_tasks_asked(tmp_path):
-    from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotWriter
+    from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY
+    from trivla_drake.data.lerobot_writer import LeRobotWriter
     from trivla_drake.train.synthetic import CAMERAS, synthetic_features
 
     n = 12

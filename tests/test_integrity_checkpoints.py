@@ -9,13 +9,8 @@ import pytest
 import torch
 
 from trivla_drake.nn.checkpoint import load_checkpoint
-from trivla_drake.nn.config import (
-    FIELDS_OLDER_CHECKPOINTS_OMIT,
-    REMOVED_FIELDS,
-    TriVLAConfig,
-    config_from_dict,
-    config_to_dict,
-)
+from trivla_drake.nn.config import TriVLAConfig
+from trivla_drake.nn.config_dict import FIELDS_OLDER_CHECKPOINTS_OMIT, REMOVED_FIELDS, config_from_dict, config_to_dict
 
 
 def _copy(directory, tmp_path):

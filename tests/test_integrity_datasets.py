@@ -12,7 +12,9 @@ import pytest
 
 from trivla_drake.data.checksums import CHECKSUMS_PATH, DatasetCorruptError, file_sha256
 from trivla_drake.data.checksums import main as record_checksums
-from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, vector_feature, video_feature
+from trivla_drake.data.lerobot_format import vector_feature, video_feature
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.train.synthetic import write_synthetic_dataset
 
 STATIC = "observation.images.static"
@@ -63,7 +65,7 @@ def test_flipped_bytes_in_a_data_file_stop_training_naming_the_file(dataset, tmp
 def test_a_replaced_video_is_refused_then_gets_new_features_once_recorded(dataset, tmp_path):
     import torch
 
-    from trivla_drake.nn.config import make_config
+    from trivla_drake.nn.presets import make_config
     from trivla_drake.nn.trivla import TriVLA
     from trivla_drake.train import TrainConfig
     from trivla_drake.train.distributed import DistEnv
@@ -104,7 +106,7 @@ def test_a_dataset_without_checksums_loads_with_one_warning_and_can_record_them(
 
 
 def test_a_crash_before_the_commit_keeps_the_checksums_of_committed_episodes_only(tmp_path, monkeypatch):
-    import trivla_drake.data.lerobot as lerobot
+    import trivla_drake.data.lerobot_writer as lerobot_writer
 
     features = {"observation.state": vector_feature(["a", "b"]), "action": vector_feature(["x"]),
                 STATIC: video_feature(8, 8, 10.0)}
@@ -118,18 +120,18 @@ def test_a_crash_before_the_commit_keeps_the_checksums_of_committed_episodes_onl
     writer = LeRobotWriter(root, fps=10.0, features=features)
     frames, videos = episode(0)
     writer.add_episode(frames, "task", videos=videos)
-    real = lerobot._atomic_write_table
+    real = lerobot_writer._atomic_write_table
 
     def crash_on_commit(path, table):
         if "meta/episodes" in str(path):
             raise KeyboardInterrupt("killed")
         real(path, table)
 
-    monkeypatch.setattr(lerobot, "_atomic_write_table", crash_on_commit)
+    monkeypatch.setattr(lerobot_writer, "_atomic_write_table", crash_on_commit)
     frames, videos = episode(1)
     with pytest.raises(KeyboardInterrupt):
         writer.add_episode(frames, "task", videos=videos)
-    monkeypatch.setattr(lerobot, "_atomic_write_table", real)
+    monkeypatch.setattr(lerobot_writer, "_atomic_write_table", real)
     reader = LeRobotReader(root)
     assert reader.num_episodes == 1
     assert sorted(reader.checksums) != sorted(reader.episode_files(0))  # the uncommitted episode's files too

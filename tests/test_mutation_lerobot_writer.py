@@ -8,7 +8,9 @@ channel, so per-channel statistics are known exactly: value / 255, standard devi
 import numpy as np
 import pytest
 
-from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, vector_feature, video_feature
+from trivla_drake.data.lerobot_format import vector_feature, video_feature
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 
 FPS = 36.0
 CAMERA = "observation.images.static"

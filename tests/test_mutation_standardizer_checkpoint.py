@@ -11,8 +11,8 @@ import torch
 
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.checkpoint import WEIGHT_DTYPES, load_checkpoint, save_checkpoint
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 

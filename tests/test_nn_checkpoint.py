@@ -8,7 +8,8 @@ import pytest
 
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.checkpoint import load_checkpoint
-from trivla_drake.nn.config import config_to_dict, make_config
+from trivla_drake.nn.config_dict import config_to_dict
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 

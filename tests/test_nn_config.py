@@ -5,7 +5,8 @@ import json
 
 import pytest
 
-from trivla_drake.nn.config import PRESETS, config_from_dict, config_to_dict, make_config
+from trivla_drake.nn.config_dict import config_from_dict, config_to_dict
+from trivla_drake.nn.presets import PRESETS, make_config
 
 
 def test_presets_build_and_default_to_paper_shapes():

@@ -10,7 +10,7 @@ import torch.nn.functional as F
 
 from trivla_drake.nn import noise_schedule
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import make_config
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 

@@ -3,10 +3,10 @@
 import pytest
 import torch
 
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.dit import DiffusionTransformer
 from trivla_drake.nn.embodiment import EmbodimentLinear, EmbodimentMLP, check_embodiment_ids
 from trivla_drake.nn.policy import FlowMatchingPolicy
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.video_former import VideoFormer
 
 

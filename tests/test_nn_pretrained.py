@@ -11,8 +11,8 @@ from safetensors.torch import save_file
 from trivla_drake.nn import pretrained
 from trivla_drake.nn.benchmark import example_observation
 from trivla_drake.nn.checkpoint import load_checkpoint, save_checkpoint
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.tokenizer import PretrainedTokenizer
 from trivla_drake.nn.trivla import TriVLA
 

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.normalization import NormalizationStats
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 

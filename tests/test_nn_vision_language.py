@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 
@@ -158,7 +158,7 @@ def test_dense_subcells_widen_the_block_head_and_are_checked():
     loss, info = model.compute_vlm_loss(batch, dense_weight=1.0)
     assert info["dense_loss"] > 0 and torch.isfinite(loss)
     cell = size // round(model.vision_language.num_image_tokens**0.5)
-    with pytest.raises(ValueError, match=f"dense_subcells \\(train --dense-subcells\\) must be >= 1 and divide a token's image cell \\({cell} pixels\\)"):
+    with pytest.raises(ValueError, match=f"dense_subcells \\(train: vlm.dense_subcells\\) must be >= 1 and divide a token's image cell \\({cell} pixels\\)"):
         TriVLA(dataclasses.replace(cfg, vision_language=dataclasses.replace(vl, dense_subcells=cell + 1)))
 
 

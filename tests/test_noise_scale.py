@@ -1,4 +1,4 @@
-"""System 1's sampling noise scale (`TriVLA.set_initial_noise_scale`, `--noise-scale`): 0 gives one
+"""System 1's sampling noise scale (`TriVLA.set_initial_noise_scale`, inference.noise_scale): 0 gives one
 deterministic chunk per observation, 1 (the default) the paper's sampling; bad values are named."""
 
 from __future__ import annotations

@@ -76,7 +76,8 @@ def test_described_commands_use_the_flags_and_set_only_what_differs():
 
 
 def _dataset(root, counts: dict[str, int]):
-    from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotWriter, vector_feature
+    from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY, vector_feature
+    from trivla_drake.data.lerobot_writer import LeRobotWriter
 
     import numpy as np
 

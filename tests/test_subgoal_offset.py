@@ -10,8 +10,8 @@ import torch
 
 from trivla_drake.config_io import with_flags
 from trivla_drake.nn.benchmark import example_observation
-from trivla_drake.nn.config import make_config
 from trivla_drake.nn.policy import SubgoalOffsetEncoder
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 

@@ -1,4 +1,4 @@
-"""`train --extra-data`: the policy stage trains on several LeRobot datasets together, each episode once,
+"""`train`'s extra_data: the policy stage trains on several LeRobot datasets together, each episode once,
 with the normalisation of all of them, and refuses folders it cannot join with an error naming the field."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import pytest
 import yaml
 
 from trivla_drake.config_io import with_flags
-from trivla_drake.data.lerobot import LeRobotReader, aggregate_stats, episode_stats
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_stats import aggregate_stats, episode_stats
 from trivla_drake.nn import load_checkpoint
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.cli_commands import main
@@ -170,7 +171,7 @@ def test_a_grounded_run_refuses_an_extra_folder_without_tcp_poses(folders, tmp_p
 
 
 def test_an_extra_folder_that_adds_nothing_new_is_refused_before_any_caching(folders, tmp_path):
-    """--data b --extra-data a: all of a's episodes are b's first three (a copy given by mistake)."""
+    """data b, extra_data [a]: all of a's episodes are b's first three (a copy given by mistake)."""
     cache = tmp_path / "cache"
     with pytest.raises(ValueError, match=r"extra_data: dataset .*/a adds no episode"):
         train(TrainConfig(stage="policy", data=folders["b"], extra_data=(folders["a"],), out=str(tmp_path / "out"),
@@ -191,7 +192,7 @@ def test_a_resume_on_other_folders_is_refused_naming_them(folders, tmp_path):
 
 def test_an_episode_keeps_its_row_key_whether_its_unused_settings_are_written_or_not():
     """Rows written before session 66 leave unused settings out; newer rows write their defaults: the same episode."""
-    from trivla_drake.data.lerobot import EPISODE_COLUMN_DEFAULTS
+    from trivla_drake.data.lerobot_format import EPISODE_COLUMN_DEFAULTS
 
     class Rows:
         def __init__(self, *rows):

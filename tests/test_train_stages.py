@@ -15,7 +15,7 @@ import torch
 import yaml
 
 from trivla_drake.config_io import with_flags
-from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.nn import TriVLA, load_checkpoint, make_config, save_checkpoint
 from trivla_drake.train import TrainConfig, train
 from trivla_drake.train.config import OptimizerConfig
@@ -189,7 +189,7 @@ def test_policy_stage_sets_the_tcp_features_of_an_init_checkpoint(runs, tmp_path
 
 
 def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
-    """--vl-position-embedding gives System 1 a fresh embedding of Q_vl's leading token positions
+    """policy.vl_position_embedding gives System 1 a fresh embedding of Q_vl's leading token positions
     (an --init without one), trains it, reloads it from the checkpoint, keeps System 2 as it was,
     and is refused where there is no System 1 training or no System 2."""
     init = runs["policy"]["final_checkpoint"]
@@ -217,7 +217,7 @@ def test_policy_stage_adds_the_vl_position_embedding(runs, tmp_path):
 
 
 def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp_path):
-    """--grounding-weight gives System 1 a fresh instruction grounding (an --init without one), trains
+    """policy.grounding.weight gives System 1 a fresh instruction grounding (an --init without one), trains
     it on sub-goals from the dataset's tcp poses, logs both losses, keeps it when continued, and is
     refused without a weight, without tcp poses, outside the policy stage and without System 2."""
     data = write_synthetic_dataset(tmp_path / "data", episodes=3, length=24, tcp_pose=True)
@@ -261,7 +261,7 @@ def test_policy_stage_adds_the_instruction_grounding_and_logs_its_loss(runs, tmp
 
 
 def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
-    """The two-step recipe: --grounding-phase bind trains only the binding (the grounding but its goal
+    """The two-step recipe: policy.grounding.phase bind trains only the binding (the grounding but its goal
     projection, and the Q_vl path) on the sub-goal loss alone over the approach frames; follow, from
     that checkpoint, keeps the binding and trains the rest of System 1 on both losses. Follow without a
     bound grounding, and either phase without a grounding weight, are refused naming the field."""
@@ -284,7 +284,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert all("grounding_loss" in row and "flow_loss" not in row for row in logged)
     groups = torch.load(tmp_path / "bind" / "final" / "training_state.pt",
                         weights_only=False)["optimizer"]["param_groups"]
-    assert {g["lr_scale"] for g in groups} == {1.0}  # bind trains at --lr
+    assert {g["lr_scale"] for g in groups} == {1.0}  # bind trains at lr
 
     # a bind run from a grounded checkpoint starts from a fresh grounding drawn from --seed
     from trivla_drake.train.model_setup import build_model
@@ -295,7 +295,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     rebound = build_model(again, None).policy.grounding.state_dict()
     assert not torch.equal(rebound["compose.weight"], after.policy.grounding.compose.weight)
     assert torch.equal(rebound["compose.weight"], build_model(again, None).policy.grounding.compose.weight)
-    # --keep-grounding: a bind run goes on from --init's grounding (a curriculum); refused without one
+    # policy.grounding.keep: a bind run goes on from --init's grounding (a curriculum); refused without one
     kept = build_model(with_flags(again, {"policy.grounding.keep": True}), None).policy.grounding.state_dict()
     assert all(torch.equal(kept[k], v) for k, v in after.policy.grounding.state_dict().items())
     with pytest.raises(ValueError, match="policy.grounding.keep .*which has none"):
@@ -303,7 +303,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="policy.grounding.reads_gripper .*follow run keeps.*bind one with"):
         build_model(with_flags(again, {"policy.grounding.phase": "follow", "policy.grounding.reads_gripper": True}),
                     None)
-    # --keep-grounding --grounding-reads-gripper --bind-held-only: only the held-block read-out (a copy of the
+    # policy.grounding keep, reads_gripper and bind_held_only: only the held-block read-out (a copy of the
     # bound read-out) trains; every other weight and the feature statistics stay the bound checkpoint's (on
     # other data, whose statistics differ)
     held_data = write_synthetic_dataset(tmp_path / "held_data", episodes=3, length=24, tcp_pose=True, seed=2)
@@ -315,7 +315,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     mine = gripped.policy.state_dict()
     for name, value in after.policy.state_dict().items():
         assert torch.equal(mine[name], value), name
-    # --fresh-system1 in a follow run: a System 1 drawn anew from --seed but for the bound checkpoint's
+    # policy.fresh_system1 in a follow run: a System 1 drawn anew from --seed but for the bound checkpoint's
     # binding and feature statistics, which it keeps (a policy learnt anew on a grounding bound elsewhere)
     fresh_follow = with_flags(again, {"policy.grounding.phase": "follow", "policy.fresh_system1": True})
     fresh_follow.validate()
@@ -344,7 +344,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
     assert all({"flow_loss", "grounding_loss"} <= set(row) for row in _rows(tmp_path / "follow"))
     # the binding's feature statistics stay, though another dataset's would differ
     assert torch.equal(followed.policy.vl_standardizer.mean, after.policy.vl_standardizer.mean)
-    # --subgoal-offset: a follow run adds the offset encoder (from zero) and trains it with the rest
+    # policy.subgoal_offset: a follow run adds the offset encoder (from zero) and trains it with the rest
     offset = train(with_flags(TrainConfig(stage="policy", data=other, out=str(tmp_path / "offset"),
                                           init=bound["final_checkpoint"], steps=2, **runs["common"]), {"policy.grounding.weight": 1.0, "policy.grounding.phase": "follow", "policy.subgoal_offset": True}))
     offset_model = load_checkpoint(offset["final_checkpoint"])
@@ -369,7 +369,7 @@ def test_grounding_phases_bind_then_follow(runs, tmp_path, monkeypatch):
 
 
 def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_path):
-    """--dense-weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
+    """vlm.dense_weight gives System 2 a fresh block head (an --init without one), trains it on the VQA
     set's label maps next to the LM loss, logs the dense loss, and is refused outside the vlm stage."""
     summary = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "dense"),
                                            init=runs["video"]["final_checkpoint"], steps=3, **runs["common"]), {"vlm.vqa_scenes": 10, "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0}))
@@ -384,7 +384,7 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
                    {"vlm.dense_weight": 1.0}).resolved().validate()
     with pytest.raises(ValueError, match="vlm.dense_weight must be >= 0"):
         with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")), {"vlm.dense_weight": -1.0}).resolved().validate()
-    # --dense-subcells on a model whose head has whole cells: a fresh, wider head, recorded in the config
+    # vlm.dense_subcells on a model whose head has whole cells: a fresh, wider head, recorded in the config
     finer = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "finer"), init=summary["final_checkpoint"],
                                          steps=1, **runs["common"]), {"vlm.vqa_scenes": 10,
                                                                       "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0, "vlm.dense_subcells": 2}))
@@ -393,7 +393,7 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
     assert finer_model.vision_language.block_head.out_features == 3 * 4
     again = train(with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "again"), init=finer["final_checkpoint"],
                                          steps=1, **runs["common"]), {"vlm.vqa_scenes": 10,
-                                                                      "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0}))  # no --dense-subcells: the head is kept
+                                                                      "vlm.vqa_questions_per_scene": 4, "vlm.vqa_eval_questions": 0, "vlm.dense_weight": 1.0}))  # no vlm.dense_subcells: the head is kept
     assert load_checkpoint(again["final_checkpoint"]).config.vision_language.dense_subcells == 2
     with pytest.raises(ValueError, match="vlm.dense_subcells .*needs vlm.dense_weight"):
         with_flags(TrainConfig(stage="vlm", out=str(tmp_path / "v")), {"vlm.dense_subcells": 2}).resolved().validate()
@@ -403,7 +403,7 @@ def test_vlm_stage_dense_loss_adds_the_block_head_and_logs_its_loss(runs, tmp_pa
 
 
 def test_vlm_stage_refuses_a_model_exported_without_its_upper_llm_layers(runs, tmp_path):
-    """An export with --drop-unused-llm-layers answers no questions: the vlm stage says so before it trains."""
+    """An export with drop_unused_llm_layers answers no questions: the vlm stage says so before it trains."""
     from trivla_drake.train.checkpoints import export_checkpoint
 
     trimmed = export_checkpoint(runs["vlm"]["final_checkpoint"], tmp_path / "trimmed", drop_unused_llm_layers=True)
@@ -515,7 +515,7 @@ def test_a_retrained_system2_copies_system3_features_from_a_lender(runs, tmp_pat
 
 
 def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, tmp_path):
-    """--system2-from: the --init model with the donor's System 2 (trimmed as --init's is); System 3's
+    """policy.system2_from: the --init model with the donor's System 2 (trimmed as --init's is); System 3's
     features are copied from --init's cache, Q_vl computed with the new System 2."""
     summary = train(with_flags(TrainConfig(stage="policy", data=runs["data"], out=str(tmp_path / "swap"), steps=2,
                                            init=runs["policy"]["final_checkpoint"], **runs["common"]), {"policy.system2_from": runs["video"]["final_checkpoint"]}))
@@ -545,7 +545,7 @@ def test_system2_from_swaps_in_another_system2_and_keeps_systems_1_and_3(runs, t
 
 
 def test_fresh_system1_trains_a_new_system1_on_the_init_models_systems_2_and_3(runs, tmp_path):
-    """--fresh-system1: System 1 drawn anew from --seed (not --init's), Systems 2 and 3 kept as --init has
+    """policy.fresh_system1: System 1 drawn anew from --seed (not --init's), Systems 2 and 3 kept as --init has
     them; the same seed draws the same System 1."""
     init = load_checkpoint(runs["policy"]["final_checkpoint"])
     common = {**runs["common"], "lr": 1e-12, "optimizer": OptimizerConfig(warmup_steps=1)}

@@ -12,7 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import ImageRgba8U
 
-from trivla_drake.nn.config import make_config
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.station import load_scenario, make_station
 from trivla_drake.systems.latency import LatencyModel

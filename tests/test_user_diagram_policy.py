@@ -26,7 +26,7 @@ from trivla_drake import (
     make_parser,
     robot_base_pose,
 )
-from trivla_drake.nn.config import make_config
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 from test_user_diagram_frames import MOVED, load_example
 

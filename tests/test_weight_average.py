@@ -1,4 +1,4 @@
-"""`train --ema-decay`: checkpoints hold the moving average of the trained weights; a killed run resumes
+"""`train`'s ema_decay: checkpoints hold the moving average of the trained weights; a killed run resumes
 to the same average and trained weights."""
 
 from __future__ import annotations

@@ -4,7 +4,9 @@ No pydrake here: pyarrow for parquet, OpenCV for mp4.
 """
 
 from trivla_drake.data.checksums import DatasetCorruptError
-from trivla_drake.data.lerobot import LeRobotReader, LeRobotWriter, NotADatasetError
+from trivla_drake.data.lerobot_format import NotADatasetError
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.data.samples import TrainingSamples
 
 __all__ = ["DatasetCorruptError", "LeRobotReader", "LeRobotWriter", "NotADatasetError", "TrainingSamples"]

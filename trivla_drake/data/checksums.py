@@ -77,7 +77,7 @@ def check_file(root: str | os.PathLike, relative: str, recorded: dict[str, str])
 
 def main(argv: list[str] | None = None) -> int:
     """Records the checksums of every committed episode's files of the datasets named on the command line."""
-    from trivla_drake.data.lerobot import LeRobotReader
+    from trivla_drake.data.lerobot_reader import LeRobotReader
 
     folders = sys.argv[1:] if argv is None else argv
     if not folders:

@@ -7,7 +7,7 @@ import dataclasses as dc
 import shutil
 from pathlib import Path
 
-from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.data.lerobot_reader import LeRobotReader
 
 
 @dc.dataclass

@@ -30,7 +30,8 @@ from collections import OrderedDict
 
 import numpy as np
 
-from trivla_drake.data.lerobot import EPISODE_TASK_KEY, PERTURBED_FRAMES_KEY, LeRobotReader
+from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY, PERTURBED_FRAMES_KEY
+from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.data.subgoals import (
     approach_frames,
     carry_frames,

@@ -11,9 +11,9 @@ Only the *approach* frames, those before the first gripper change, train the gro
 named object is the only cue to the sub-goal. Once a block is held, the wrist view shows the
 answer, and with those frames in the loss the grounding never learnt to read the colour word (10 of
 30 queries nearest the named block, chance; 28 of 30 on the approach frames alone,
-results/instruction_grounding). Optionally (`--grounding-carry TASKS`) the frames that carry a held
+research/instruction_grounding). Optionally (`policy.grounding.carry_tasks`) the frames that carry a held
 block to a destination the instruction names train it too (`carry_frames`): the wrist view shows the
-block held, not where it goes, and nothing else asks for stack's second colour (results/stack_destinations).
+block held, not where it goes, and nothing else asks for stack's second colour (research/stack_destinations).
 """
 
 from __future__ import annotations

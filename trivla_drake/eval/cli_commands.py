@@ -55,7 +55,7 @@ def command_config(schema: type, args: argparse.Namespace, flags: dict[str, Any]
 
 
 def _user_errors():
-    from trivla_drake.data.lerobot import NotADatasetError
+    from trivla_drake.data.lerobot_format import NotADatasetError
 
     # ScenarioError is a ValueError (naming it here would import Drake, which `main` reports missing).
     return (ValueError, NotADatasetError, FileNotFoundError, NotImplementedError)

@@ -28,16 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from trivla_drake.data.lerobot import (
+from trivla_drake.data.durable import atomic_write_text
+from trivla_drake.data.lerobot_format import (
     ACTION_NOISE_KEY,
     EPISODE_TASK_KEY,
     PERTURBED_FRAMES_KEY,
     PRELUDE_KEY,
-    LeRobotWriter,
-    image_stats,
     vector_feature,
     video_feature,
 )
+from trivla_drake.data.lerobot_stats import image_stats
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.eval.collect_config import MAX_PRELUDE_TASKS, CollectConfig  # noqa: F401  (read from here too)
 from trivla_drake.eval.evaluate import results_in_order
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
@@ -110,7 +111,7 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
 
 class _Progress:
     """meta/trivla_collection.json: the latest run's settings (`config`), every run's that differed from the
-    one before (`runs`: a folder resumed with, e.g., --prelude-tasks holds episodes of both kinds), and every
+    one before (`runs`: a folder resumed with, e.g., prelude_tasks holds episodes of both kinds), and every
     failed attempt (with its reason)."""
 
     def __init__(self, root: Path, config: CollectConfig):
@@ -136,9 +137,8 @@ class _Progress:
         self.save()
 
     def save(self) -> None:
-        from trivla_drake.data.lerobot import _atomic_write_json
-
-        _atomic_write_json(self.path, {"config": asdict(self.config), "runs": self.runs, "failed": self.failed})
+        state = {"config": asdict(self.config), "runs": self.runs, "failed": self.failed}
+        atomic_write_text(self.path, json.dumps(state, indent=2))
 
 
 def collect(config: CollectConfig, *, progress: bool = True) -> dict:

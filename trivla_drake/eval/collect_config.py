@@ -8,7 +8,8 @@ from typing import Optional
 from trivla_drake.eval.evaluate_config import check_episode_count
 from trivla_drake.eval.plugin_config import PluginConfig
 from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import TASK_NAMES, check_run_settings
+from trivla_drake.tasks.run_settings import check_run_settings
+from trivla_drake.tasks.suite import TASK_NAMES
 
 MAX_PRELUDE_TASKS = CHAIN_LENGTH - 1
 

@@ -53,7 +53,7 @@ class DemoConfig:
         """ValueError naming the flag or the dotted field of a setting that cannot run, before a model loads or a
         simulation runs (execute_steps' upper bound is the checkpoint's chunk length: checked once it loads)."""
         from trivla_drake.systems.latency import LatencyModel
-        from trivla_drake.tasks.suite import check_run_settings
+        from trivla_drake.tasks.run_settings import check_run_settings
 
         if self.policy not in ("trivla", "oracle"):
             raise ValueError(f"--policy must be trivla or oracle, got {self.policy!r}")

@@ -298,7 +298,7 @@ def run_episode(
 
     `hold_check` (seconds): at a success the hand is then held still that long, the gripper keeping its last
     command, and the task's predicate asked again (`EpisodeResult.lasted`): a stacked block let go tilted, which the
-    predicate counts at the instant it holds, may have fallen off by then (results/predicate_audit/).
+    predicate counts at the instant it holds, may have fallen off by then (research/predicate_audit/).
 
     `perturbation` (a registered perturbation, eval/perturbations.py, e.g. DART's bursts) disturbs the applied
     actions; its random draws come from their own stream derived from `seed`, so the scene is the same with and

@@ -8,7 +8,8 @@ from typing import Optional
 from trivla_drake.eval.inference_config import InferenceConfig
 from trivla_drake.eval.plugin_config import PluginConfig
 from trivla_drake.tasks.chains import CHAIN_LENGTH
-from trivla_drake.tasks.suite import TASK_NAMES, check_run_settings
+from trivla_drake.tasks.run_settings import check_run_settings
+from trivla_drake.tasks.suite import TASK_NAMES
 
 # Default base seed of evaluations: `collect` uses base seed 0, so these scenes are unseen by the
 # demonstrations (tests check the two seed sets are disjoint).

@@ -8,10 +8,10 @@ the hand rises straight up to the home height if it is below it, then moves and 
 straight line, each step within the action bounds. The commanded pose gets there first: the diff-IK follows a
 commanded path at the action's top speed up to some 13 cm behind, so the arm would still be moving fast (0.7-1.7
 rad/s), often centimetres from home, when the policy takes over (an earlier version handed over then, and the
-tasks after a prelude did worse than without it, results/prelude_reset/). So the wrapper then holds the commanded
+tasks after a prelude did worse than without it, research/prelude_reset/). So the wrapper then holds the commanded
 pose until the measured tool-centre point is within `SETTLED_M` of home and the arm has all but stopped, as it is
 at the start of an episode, or until its `max_steps` are spent (then the arm may still be turning slowly: 3 of 12
-homings after a prelude, results/prelude_reset/). A task that starts the episode (simulated time 0: a single task,
+homings after a prelude, research/prelude_reset/). A task that starts the episode (simulated time 0: a single task,
 or a chain's first) starts in the start posture already and is not homed. The hand opens, as it is at the start
 posture, unless it is closed on something (the fingers stopped apart): a block held after a lift stays in the
 hand. Its steps count against the task's step budget like any others.
@@ -92,8 +92,8 @@ class Homing:
         if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
             raise ValueError(f"max_steps must be an integer >= 1 (control steps), got {max_steps!r}")
         self.max_steps = max_steps
-        # False: the first version (results/home_first/ was made with it, up to commit d85a985; it did worse
-        # than no homing at all), kept for the diagnostics of results/prelude_reset/: it homes at the episode's
+        # False: the first version (research/home_first/ was made with it, up to commit d85a985; it did worse
+        # than no homing at all), kept for the diagnostics of research/prelude_reset/: it homes at the episode's
         # start too, and hands over once the commanded pose is home and the fingers are open, the arm still
         # catching up.
         self.settle = settle

@@ -6,7 +6,7 @@ recorded actions stay the policy's; eval/action_noise.py has the `Disturbance` i
 
     run_episode(task, seed, policy, perturbation=make_perturbation("dart", scale=1.0))
 
-Registered here: "dart", DART's perturbation bursts (`collect --action-noise`)."""
+Registered here: "dart", DART's perturbation bursts (`collect --set perturbation.name=dart`)."""
 
 from __future__ import annotations
 
@@ -28,5 +28,5 @@ def make_perturbation(name: str, **settings) -> Disturbance:
 
 @register_perturbation("dart")
 def dart(scale: float = 1.0) -> PerturbationBursts:
-    """DART's perturbation bursts at `scale` times the default burst rate (`collect --action-noise`)."""
+    """DART's perturbation bursts at `scale` times the default burst rate (`collect --set perturbation.name=dart`)."""
     return PerturbationBursts.scaled(scale)

@@ -18,7 +18,7 @@ def check_seconds(seconds: float | None, flag: str) -> float | None:
     return seconds
 
 
-def check_port(port: int | None, flag: str = "--port") -> int | None:
+def check_port(port: int | None, flag: str = "port") -> int | None:
     """`port` if None (Drake's default, 7000 up) or 0 to 65535 (0: any free port); else ValueError naming `flag`."""
     if port is not None and port not in PORTS:
         raise ValueError(f"{flag} must be a port from {PORTS.start} to {PORTS.stop - 1} (0: any free port), got {port}")

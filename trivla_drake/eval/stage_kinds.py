@@ -44,7 +44,8 @@ def describe_command(command: str, config, flags: dict[str, str], *, leading: tu
 
 def collect_is_done(config: CollectConfig, workdir: str = "") -> bool:
     """The dataset at `config.out` holds `episodes_per_task` episodes of every task of `config`."""
-    from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotReader
+    from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY
+    from trivla_drake.data.lerobot_reader import LeRobotReader
 
     if not (Path(config.out) / "meta" / "info.json").is_file():
         return False

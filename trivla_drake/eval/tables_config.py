@@ -61,7 +61,7 @@ class TablesConfig:
     def validate(self) -> None:
         """ValueError naming the flag or the dotted field of a setting that cannot run."""
         from trivla_drake.tasks import get_task
-        from trivla_drake.tasks.suite import check_seed
+        from trivla_drake.tasks.run_settings import check_seed
 
         if not self.seeds:
             raise ValueError("--seeds is empty: give one or more comma-separated base seeds, e.g. 1000,1001,1002")

@@ -16,7 +16,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from trivla_drake.nn.config import make_config
+from trivla_drake.nn.presets import make_config
 from trivla_drake.nn.trivla import TriVLA
 
 CPU_GOAL_MS = 278.0  # 10 actions per chunk at 36 Hz

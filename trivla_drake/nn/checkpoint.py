@@ -10,7 +10,7 @@ from typing import Any
 
 import torch
 
-from trivla_drake.nn.config import config_from_dict, config_to_dict
+from trivla_drake.nn.config_dict import config_from_dict, config_to_dict
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer
 from trivla_drake.nn.normalization import NormalizationStats
 from trivla_drake.nn.tokenizer import ByteTokenizer, PretrainedTokenizer, TextTokenizer, load_tokenizer

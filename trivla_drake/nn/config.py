@@ -1,16 +1,12 @@
-"""TriVLA configuration: dataclasses whose defaults are the paper's shapes, and the named presets.
+"""TriVLA configuration schema: dataclasses whose defaults are the paper's shapes, and their validation.
 
-`make_config("paper")` is the paper's model (Eagle-2 = SigLIP + SmolLM2-1.7B read out at layer 12,
-SVD 1.5B, a GR00T-sized DiT); `"cpu"` is the project's default (trainable and fast enough for
-closed-loop control on 2 CPU cores); `"tiny"` builds in well under a second for tests.
+The named presets (`make_config("cpu")`) are in `presets.py`; the checkpoint's JSON round trip in
+`config_dict.py`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import typing
 from dataclasses import dataclass, field
-from typing import Any
 
 from trivla_drake.action import ACTION_NAMES
 
@@ -67,12 +63,12 @@ class VisionLanguageConfig:
     max_instruction_tokens: int = 128  # longer instructions are rejected
     # Classes of a linear head on each projected image token that says which blocks its image cell
     # shows (`VisionLanguageModule.block_head`), trained by the vlm stage's dense loss
-    # (`train --dense-weight`) from the renderer's label images so the vision tower learns where the
+    # (`vlm.dense_weight` of the training config) from the renderer's label images so the vision tower learns where the
     # blocks are. Not in Eagle-2 (its SigLIP comes pretrained); unused at inference. 0: no head.
     dense_classes: int = 0
     # Sub-cells per side of each token's image cell that the block head tells apart: with 4, a token of
     # 28 x 28 pixels says which of its 16 cells of 7 x 7 pixels show each block, so the tokens must
-    # carry where in their cell a block lies, finer than the token grid (results/subcell_dense); a
+    # carry where in their cell a block lies, finer than the token grid (research/subcell_dense); a
     # sub-cell of 7 x 7 shows a block when any of its pixels does (DENSE_MIN_FRACTION). 1: the
     # whole cell (checkpoints saved before it existed). Must divide the cell's side in pixels.
     dense_subcells: int = 1
@@ -191,26 +187,28 @@ class PolicyConfig:
     # layout in every prompt) after their standardisation, so System 1 knows where in which image a
     # token it attends to lies, as the Video Former's spatial_pos does for System 3's tokens. Without
     # it an attended image token says what is there but not where. Off in checkpoints saved before it
-    # existed and in the shipped one; `train --stage policy --vl-position-embedding` turns it on.
+    # existed and in the shipped one; the policy stage's `policy.vl_position_embedding` turns it on.
     vl_position_embedding: bool = False
     # System 1's instruction grounding (nn/instruction_grounding.py): a query from the instruction's
     # tokens attends over System 2's image tokens, predicts the next gripper event's tool-centre-point
     # position (an auxiliary loss in training) and adds a goal to the state token. Needs System 2.
-    # Off in checkpoints saved before it existed; `train --stage policy --grounding-weight W` turns it on.
+    # Off in checkpoints saved before it existed; the policy stage's `policy.grounding.weight` turns it on.
     instruction_grounding: bool = False
     # Also tell the state token where the grounding's sub-goal is from the tool-centre point: an MLP
     # of (sub-goal - tcp position) added to Q_s. The DiT otherwise has to subtract two positions it
     # only sees embedded (the goal and the tcp features); without it the gripper closed a median 3.6 cm
-    # from its own grounding's sub-goal, with it 3.3 cm (results/subgoal_offset). Needs instruction_grounding and
+    # from its own grounding's sub-goal, with it 3.3 cm (research/subgoal_offset). Needs instruction_grounding and
     # tcp_features; System 1 then needs the robot state with Q_s (`TriVLA.sample_actions(state=...)`).
-    # Off in checkpoints saved before it existed; `train --stage policy --subgoal-offset` turns it on.
+    # Off in checkpoints saved before it existed; the policy stage's `policy.subgoal_offset` turns
+    # it on.
     subgoal_offset: bool = False
     # The instruction grounding also reads how far the gripper is closed (nn/panda_gripper.py), and a
     # second read-out answers while a block is held: one instruction can then name one block before the
     # grasp and another after it ("stack the red block on the blue one"); taught the carrying frames with
-    # one read-out, the grounding put the sub-goal between the two before the grasp (results/stack_carry).
+    # one read-out, the grounding put the sub-goal between the two before the grasp (research/stack_carry).
     # Needs instruction_grounding; the grounding then needs the robot state. Off in checkpoints saved
-    # before it existed; `train --stage policy --grounding-phase bind --grounding-reads-gripper` turns it on.
+    # before it existed; a bind run's `policy.grounding.reads_gripper`
+    # turns it on.
     grounding_reads_gripper: bool = False
 
 
@@ -259,7 +257,7 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(f"vision_language.dense_classes must be >= 0; got {vl.dense_classes}")
     cell = vl.vision.image_size // (grid // factor)  # a token's image cell, pixels per side
     if vl.dense_subcells < 1 or cell % vl.dense_subcells:
-        raise ValueError(f"vision_language.dense_subcells (train --dense-subcells) must be >= 1 and divide a "
+        raise ValueError(f"vision_language.dense_subcells (train: vlm.dense_subcells) must be >= 1 and divide a "
                          f"token's image cell ({cell} pixels); got {vl.dense_subcells}")
     n_up = len(dyn.unet.up_block_types)
     if not 1 <= dyn.feature_up_blocks <= n_up:
@@ -303,281 +301,3 @@ def validate_config(config: TriVLAConfig) -> None:
     if pol.subgoal_offset and not (pol.instruction_grounding and pol.tcp_features):
         raise ValueError("policy.subgoal_offset is the grounding's sub-goal relative to the tcp position: it needs "
                          "policy.instruction_grounding and policy.tcp_features")
-
-
-# ---------------------------------------------------------------------------------------------
-# Presets
-
-
-# The small presets' UNet: three levels, cross-attention on the two finest (as SVD's, shallower).
-_THREE_LEVEL_UNET_BLOCKS = dict(
-    down_block_types=("CrossAttnDownBlockSpatioTemporal", "CrossAttnDownBlockSpatioTemporal", "DownBlockSpatioTemporal"),
-    up_block_types=("UpBlockSpatioTemporal", "CrossAttnUpBlockSpatioTemporal", "CrossAttnUpBlockSpatioTemporal"),
-)
-
-
-def _paper_config() -> TriVLAConfig:
-    return TriVLAConfig(preset="paper", policy=PolicyConfig(tcp_features=True))
-
-
-def _cpu_config() -> TriVLAConfig:
-    # Sized for < 278 ms per full inference on 2 CPU cores (see benchmark.py) and CPU training.
-    from trivla_drake.nn.tokenizer import ByteTokenizer
-
-    return TriVLAConfig(
-        preset="cpu",
-        vision_language=VisionLanguageConfig(
-            vision=VisionEncoderConfig(
-                hidden_size=192, intermediate_size=768, num_hidden_layers=4, num_attention_heads=3
-            ),
-            llm=LanguageModelConfig(
-                vocab_size=ByteTokenizer.VOCAB_SIZE,
-                hidden_size=192,
-                intermediate_size=512,
-                num_hidden_layers=4,
-                num_attention_heads=3,
-                num_key_value_heads=3,
-                rope_theta=10000.0,
-                max_position_embeddings=512,
-            ),
-            select_layer=2,
-            drop_unused_llm_layers=False,  # keep all 4 layers so System 2 can be pretrained on VQA
-            max_instruction_tokens=120,
-        ),
-        dynamics=DynamicsConfig(
-            vae=VideoAutoencoderConfig(block_out_channels=(32, 32, 64, 64), layers_per_block=1),
-            unet=VideoUNetConfig(
-                block_out_channels=(32, 64, 64),
-                **_THREE_LEVEL_UNET_BLOCKS,
-                layers_per_block=1,
-                cross_attention_dim=64,
-                num_attention_heads=(2, 4, 4),
-                addition_time_embed_dim=32,
-            ),
-            text=TextEncoderConfig(
-                vocab_size=ByteTokenizer.VOCAB_SIZE,
-                hidden_size=64,
-                intermediate_size=256,
-                num_hidden_layers=2,
-                num_attention_heads=2,
-                max_position_embeddings=128,
-            ),
-            video_size=64,  # 64 px -> 8 x 8 latents
-            num_frames=5,  # current frame + 4 future frames
-            text_max_tokens=128,
-            feature_up_blocks=2,
-            feature_size=8,
-        ),
-        policy=PolicyConfig(
-            tcp_features=True,  # the presets' System 1 reads the tcp pose too (nn/panda_tcp.py)
-            # 4 DiT layers and 2 embodiment slots keep the whole model under 25 MB in float16 (the
-            # shipped default checkpoint, models/trivla_cpu) and System 1 training fast on 2 cores.
-            num_embodiments=2,
-            hidden_size=192,
-            num_layers=4,
-            num_heads=4,
-            former_dim=128,
-            former_depth=2,
-            former_heads=4,
-            former_queries_per_frame=4,
-        ),
-    )
-
-
-def _tiny_config() -> TriVLAConfig:
-    # The smallest shapes the library classes accept (GroupNorm needs channels divisible by 32).
-    from trivla_drake.nn.tokenizer import ByteTokenizer
-
-    return TriVLAConfig(
-        preset="tiny",
-        vision_language=VisionLanguageConfig(
-            vision=VisionEncoderConfig(
-                hidden_size=32, intermediate_size=64, num_hidden_layers=1, num_attention_heads=2
-            ),
-            llm=LanguageModelConfig(
-                vocab_size=ByteTokenizer.VOCAB_SIZE,
-                hidden_size=32,
-                intermediate_size=64,
-                num_hidden_layers=2,
-                num_attention_heads=2,
-                num_key_value_heads=1,
-                rope_theta=10000.0,
-                max_position_embeddings=512,
-            ),
-            select_layer=1,
-            drop_unused_llm_layers=False,
-            max_instruction_tokens=64,
-        ),
-        dynamics=DynamicsConfig(
-            vae=VideoAutoencoderConfig(block_out_channels=(32, 32), layers_per_block=1),
-            unet=VideoUNetConfig(
-                block_out_channels=(32, 32, 32),
-                **_THREE_LEVEL_UNET_BLOCKS,
-                layers_per_block=1,
-                cross_attention_dim=32,
-                num_attention_heads=(1, 2, 2),
-                addition_time_embed_dim=8,
-            ),
-            text=TextEncoderConfig(
-                vocab_size=ByteTokenizer.VOCAB_SIZE,
-                hidden_size=32,
-                intermediate_size=64,
-                num_hidden_layers=1,
-                num_attention_heads=2,
-                max_position_embeddings=72,
-            ),
-            video_size=16,  # 16 px -> 8 x 8 latents
-            num_frames=3,
-            text_max_tokens=72,
-            feature_up_blocks=2,
-            feature_size=4,
-        ),
-        policy=PolicyConfig(
-            tcp_features=True,  # the presets' System 1 reads the tcp pose too (nn/panda_tcp.py)
-            num_embodiments=2,
-            hidden_size=32,
-            num_layers=2,
-            num_heads=2,
-            former_dim=32,
-            former_depth=1,
-            former_heads=2,
-            former_queries_per_frame=2,
-        ),
-    )
-
-
-PRESETS: dict[str, typing.Callable[[], TriVLAConfig]] = {
-    "tiny": _tiny_config,
-    "cpu": _cpu_config,
-    "paper": _paper_config,
-}
-"""Preset name -> config factory."""
-
-DEFAULT_PRESET = "cpu"
-
-
-def make_config(preset: str = DEFAULT_PRESET, **overrides: Any) -> TriVLAConfig:
-    """Returns the named preset's config (`tiny`, `cpu`, `paper`); top-level fields may be overridden."""
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
-    config = PRESETS[preset]()
-    if overrides:
-        config = dataclasses.replace(config, **overrides)
-    return config
-
-
-# ---------------------------------------------------------------------------------------------
-# JSON round trip
-
-
-def config_to_dict(config: TriVLAConfig) -> dict[str, Any]:
-    """The config as plain JSON-able data (tuples become lists)."""
-    return dataclasses.asdict(config)
-
-
-# Fields added after checkpoints were first saved, each with the value that reproduces what a checkpoint saved
-# before the field existed was trained and run with (a missing field takes this value; any other missing field
-# is refused, since its default may not be what the checkpoint was made with). Dotted paths under `config`.
-FIELDS_OLDER_CHECKPOINTS_OMIT: dict[str, Any] = {
-    "vision_language.dense_classes": 0,
-    "vision_language.dense_subcells": 1,
-    "dynamics.feature_noise": "random",  # before it, System 3 drew its one-pass noise anew each call
-    "dynamics.feature_noise_seed": 0,
-    "policy.tcp_features": False,
-    "policy.vl_position_embedding": False,
-    "policy.instruction_grounding": False,
-    "policy.subgoal_offset": False,
-    "policy.grounding_reads_gripper": False,
-}
-# Fields of model variants no shipped checkpoint turned on, removed from the code (it is at git tag
-# `research-archive`), each with its off value: a checkpoint that lists one at that value loads (the field is
-# ignored); one that turns it on is refused, naming the field and the tag. Dotted paths under `config`.
-REMOVED_FIELDS: dict[str, Any] = {
-    "vision_language.image_token_norm": False,
-    "policy.grounding_reads_tcp": False,
-    "policy.subgoal_yaw": False,
-    "policy.grounding_anchor_camera": (),
-    "policy.grounding_anchor_wrist_camera": (),
-}
-# The git tag that keeps the code of the REMOVED_FIELDS.
-RESEARCH_ARCHIVE_TAG = "research-archive"
-
-
-def config_from_dict(data: dict[str, Any]) -> TriVLAConfig:
-    """Rebuilds a config from `config_to_dict` data; unknown, ill-typed or missing fields raise ValueError
-    naming the dotted field (only FIELDS_OLDER_CHECKPOINTS_OMIT may be missing: they take the value given there;
-    REMOVED_FIELDS are ignored at their off value and refused otherwise)."""
-    return _from_dict(TriVLAConfig, data, "config")
-
-
-def _from_dict(cls: type, data: Any, where: str) -> Any:
-    if not isinstance(data, dict):
-        raise ValueError(f"{where} must be a JSON object; got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    data = without_removed_fields(data, REMOVED_FIELDS, where)
-    unknown = set(data) - names
-    if unknown:
-        raise ValueError(f"{where} has unknown fields {sorted(unknown)}; known: {sorted(names)}")
-    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}") for name, value in data.items()}
-    for name in sorted(names - set(data)):
-        dotted = f"{where}.{name}".partition(".")[2]
-        if dotted not in FIELDS_OLDER_CHECKPOINTS_OMIT:
-            raise ValueError(f"{where}.{name} is missing (only fields added since older checkpoints were "
-                             f"saved may be, e.g. policy.subgoal_offset): add it with the value the model was made with")
-        kwargs[name] = FIELDS_OLDER_CHECKPOINTS_OMIT[dotted]
-    return cls(**kwargs)
-
-
-def without_removed_fields(data: dict[str, Any], removed: dict[str, Any], where: str) -> dict[str, Any]:
-    """`data` without the fields of `removed` ({dotted name under `where`: off value}) that hold their off value;
-    ValueError naming a removed field that is on, and the git tag that keeps its code."""
-    kept = {}
-    for name, value in data.items():
-        dotted = f"{where}.{name}".partition(".")[2] or name
-        if dotted not in removed:
-            kept[name] = value
-            continue
-        off = removed[dotted]
-        if _plain(value) != _plain(off):
-            raise ValueError(f"{where}.{name} is {value!r}: it turns on a variant this code no longer has (only "
-                             f"{_plain(off)!r} loads); its code is at git tag `{RESEARCH_ARCHIVE_TAG}`")
-    return kept
-
-
-def _plain(value: Any) -> Any:
-    """Tuples as lists (JSON gives lists), for comparing a saved value with an off value."""
-    return list(value) if isinstance(value, (list, tuple)) else value
-
-
-def _coerce(hint: Any, value: Any, where: str) -> Any:
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if dataclasses.is_dataclass(hint):
-        return _from_dict(hint, value, where)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise ValueError(f"{where} must be a list; got {value!r}")
-        return tuple(_coerce(args[0], v, where) for v in value)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        if value is None and type(None) in args:
-            return None
-        non_none = [a for a in args if a is not type(None)]
-        return _coerce(non_none[0], value, where)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"{where} must be true/false; got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"{where} must be an integer; got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{where} must be a number; got {value!r}")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ValueError(f"{where} must be a string; got {value!r}")
-        return value
-    return value

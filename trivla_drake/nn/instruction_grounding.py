@@ -3,7 +3,7 @@
 System 1's action tokens cross-attend to Q_vl, but they are made from noise, the flow time and the
 state: they do not know the instruction, so their first attention cannot look for "the red block".
 Finding it takes two hops (read the colour word, then find that colour in the images), and the
-flow-matching loss alone did not teach them (results/system2_positions). This module makes it one
+flow-matching loss alone did not teach them (research/system2_positions). This module makes it one
 hop: the instruction's tokens attend over the position-embedded image tokens.
 The read-out predicts the next gripper event's tool-centre-point position (data/subgoals.py), a
 dense auxiliary loss, and enters the DiT as a goal added to the state token Q_s.
@@ -13,7 +13,7 @@ tool-centre-point features, so the DiT can compare them.
 With `reads_gripper`, a second read-out (its own queries, scores and sub-goal head) answers while a
 block is held (nn/panda_gripper.py): "stack the red block on the blue one" names the red block before
 the grasp and the blue one after it. Taught both with one read-out, a grounding put the sub-goal between
-the two blocks before the grasp on unseen scenes (results/stack_carry, results/stack_phase).
+the two blocks before the grasp on unseen scenes (research/stack_carry, research/stack_phase).
 """
 
 from __future__ import annotations

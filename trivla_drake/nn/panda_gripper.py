@@ -5,7 +5,7 @@ finger positions [m] (each finger's travel from the centre, 0 to 0.04), then 9 v
 gripper's closure is 0 with the fingers fully open and 1 with them touching; holding one of the
 suite's blocks (4.5 cm across) it is about 0.44. It tells a stack instruction's two phases apart:
 before the grasp the instruction names the block to pick up, while the block is held the block to put it
-on (results/stack_phase).
+on (research/stack_phase).
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ class SubgoalOffsetEncoder(nn.Module):
     """(sub-goal - tcp position) (B, 3) in tcp feature units -> a term (B, D) added to Q_s.
 
     The sub-goal is detached: flow matching must not move the grounding to suit the offset (the bind
-    phase trains the grounding; results/instruction_grounding). The offset is multiplied by
+    phase trains the grounding; research/instruction_grounding). The offset is multiplied by
     `OFFSET_GAIN` first, so that a centimetre (0.05 feature units) is not lost in the MLP's first
     layer; the output layer starts at zero, so a System 1 given this module starts as the one without."""
 
@@ -86,7 +86,7 @@ class FlowMatchingPolicy(nn.Module):
         # Standard deviation of the noise sampling starts from (flow-matching "temperature"): 1 samples
         # the learned action distribution (the paper's), 0 integrates the flow from the noise mean, one
         # deterministic chunk per observation. An inference setting, not saved with the weights:
-        # `TriVLA.set_initial_noise_scale`, or --noise-scale in `evaluate`, `demo` and `tables`.
+        # `TriVLA.set_initial_noise_scale`, or inference.noise_scale in `evaluate`, `demo` and `tables`.
         self.initial_noise_scale = 1.0
         dim, num_emb = config.hidden_size, config.num_embodiments
         self.state_input_dim = config.state_dim + (TCP_FEATURE_DIM if config.tcp_features else 0)
@@ -232,7 +232,7 @@ class FlowMatchingPolicy(nn.Module):
         training trains exactly these; the `follow` phase keeps them (train/config.py, grounding_phase).
         The source embedding added to every Q_vl token is not among them: the DiT shares it, so follow
         still trains it, and the sub-goal can move a little (20/30 to 21/30 and 28/30 to 29/30 in the
-        probe, results/instruction_grounding)."""
+        probe, research/instruction_grounding)."""
         if self.grounding is None:
             raise ValueError("this System 1 has no instruction grounding (policy.instruction_grounding is off)")
         return {name: p for name, p in self.named_parameters()

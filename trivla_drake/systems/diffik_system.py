@@ -15,6 +15,8 @@ from trivla_drake.robot.panda_kinematics import PandaKinematics
 from trivla_drake.systems.robot_base import base_pose_matrix
 
 _log = logging.getLogger(__name__)
+# Its own logger, so a harness whose hand is blocked on purpose (a push against a block) can quiet it alone.
+TRACKING_LOGGER = logging.getLogger(__name__ + ".tracking")
 N_ARM = 7
 # If the arm lags its commanded position by more than this [rad] (a collision, say), the
 # integrator restarts from the measured position instead of winding up.
@@ -135,7 +137,7 @@ class DifferentialIKSystem(LeafSystem):
         if math.isnan(far_since):
             far_since = t
         if not warned and t - far_since >= self._warning_after - 1e-9:
-            _log.warning("DifferentialIKSystem: the measured hand has stayed more than %.3f m from 'ee_target' for "
+            TRACKING_LOGGER.warning("DifferentialIKSystem: the measured hand has stayed more than %.3f m from 'ee_target' for "
                          "%.2f s (now %.3f m at t = %.3f s): is the arm following 'position_setpoint' (a driver "
                          "connected, the arm not blocked)? See the output 'tracking_error'",
                          self._warning_distance, t - far_since, distance, t)

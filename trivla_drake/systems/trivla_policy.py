@@ -79,7 +79,7 @@ class PolicyRates:
         action_space: ActionSpace = DEFAULT_ACTION_SPACE,
     ) -> "PolicyRates":
         """Systems 1, 2 and 3 all update every `steps` control steps (steps * dt seconds), as
-        `evaluate --execute-steps` replans (steps above the chunk length would leave ticks uncovered;
+        `evaluate`'s inference.execute_steps replans (steps above the chunk length would leave ticks uncovered;
         the caller checks that bound, which is the model's)."""
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
             raise ValueError(f"steps must be an integer >= 1 (control steps between replans), got {steps!r}")

@@ -549,35 +549,13 @@ def parse_task_list(text: str | None) -> list[str]:
 # Tasks that start with a grasp of their first block, which chains may ask to pick off the top of a stack.
 STACKED_PICK_TASKS = ("lift_block", "place_in_bowl", "stack_block")
 
-# Seeds are 32-bit words (eval/episode.py's derive_seed): a larger one would wrap onto another's scenes.
-MAX_SEED = 2**32 - 1
-
-
-def check_seed(seed: int, flag: str = "--seed") -> int:
-    """`seed` if it is an integer from 0 to MAX_SEED; else ValueError naming `flag`."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"{flag} must be an integer from 0 to {MAX_SEED} (a 32-bit seed; a larger one would wrap "
-                         f"onto another's scenes), got {seed!r}")
-    return seed
-
-
-def check_run_settings(tasks: list[str], seed: int) -> None:
-    """What `collect` and `evaluate` both refuse, naming the flag: an unknown task, a task named twice (the same
-    seeds twice), or a seed outside 0..MAX_SEED."""
-    for name in tasks:
-        get_task(name)
-    repeated = sorted(name for name in set(tasks) if tasks.count(name) > 1)
-    if repeated:
-        raise ValueError(f"--tasks names {repeated} more than once")
-    check_seed(seed)
-
 
 def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraphrase: bool = False,
                          max_tries: int = 200, stacked_pick: bool = False):
     """A random initial scene in which `task` can start, its parameters and instruction:
     (SceneSpec, TaskInstance). The scene is resampled until a candidate exists. With `stacked_pick` (a task
     of STACKED_PICK_TASKS) the scene starts with a stack and the block to pick up is its top one, as a chain
-    may ask (results/chain_lifts/); the single-task scenes have no stack."""
+    may ask (research/chain_lifts/); the single-task scenes have no stack."""
     from trivla_drake.tasks.scene import sample_scene, scene_from_spec
 
     if stacked_pick and task.name not in STACKED_PICK_TASKS:
@@ -599,8 +577,6 @@ def sample_task_instance(task: Task, rng: np.random.Generator, layout, *, paraph
 __all__ = [
     "BLOCK_SIZE",
     "STACKED_PICK_TASKS",
-    "MAX_SEED",
-    "check_run_settings",
     "ON_TABLE_MAX_Z",
     "TASKS",
     "TASK_NAMES",

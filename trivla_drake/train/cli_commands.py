@@ -29,7 +29,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning
 
 
 def _user_errors():
-    from trivla_drake.data.lerobot import NotADatasetError
+    from trivla_drake.data.lerobot_format import NotADatasetError
 
     return (ValueError, NotADatasetError, FileNotFoundError, FloatingPointError)
 
@@ -113,6 +113,15 @@ def _report_model_folder(target, what: str, dtype: str) -> int:
     return 0
 
 
+def _add_job_parser(commands, name: str, run, config: str, settings: str, *, help: str,
+                    example: str = "") -> argparse.ArgumentParser:
+    """Register subcommand `name` (running `run`) whose settings beyond its flags are the fields of `config`."""
+    parser = commands.add_parser(name, help=help, description=f"Settings ({settings}) are fields of {config}{example}; "
+                                                              "--print-config shows them.")
+    parser.set_defaults(run=run)
+    return parser
+
+
 def add_out_arguments(parser: argparse.ArgumentParser) -> None:
     """--out and --overwrite of `export`, `soup` and `refit`, and their --config/--set/--print-config."""
     parser.add_argument("--out", default=None,
@@ -143,14 +152,13 @@ def run_export(args: argparse.Namespace) -> int:
 
 def add_export_parser(commands) -> argparse.ArgumentParser:
     """Register `export` on an argparse subparsers object."""
-    parser = commands.add_parser(
-        "export", help="write a checkpoint's model (no optimizer state) with float16 weights, e.g. for "
-                       "models/trivla_cpu",
-        description="Settings (dtype, drop_unused_llm_layers) are fields of ExportConfig "
-                    "(trivla_drake/train/export_job.py): --set dtype=float32; --print-config shows them.")
+    parser = _add_job_parser(
+        commands, "export", run_export, "ExportConfig (trivla_drake/train/export_job.py)",
+        "dtype, drop_unused_llm_layers",
+        help="write a checkpoint's model (no optimizer state) with float16 weights, e.g. for models/trivla_cpu",
+        example=": --set dtype=float32")
     parser.add_argument("checkpoint", help="checkpoint folder (a run's final/ or checkpoints/step-N/)")
     add_out_arguments(parser)
-    parser.set_defaults(run=run_export)
     return parser
 
 
@@ -169,16 +177,14 @@ def run_soup(args: argparse.Namespace) -> int:
 
 def add_soup_parser(commands) -> argparse.ArgumentParser:
     """Register `soup` on an argparse subparsers object."""
-    parser = commands.add_parser(
-        "soup", help="average the weights of policy checkpoints trained from one start (e.g. follow runs that "
-                     "differ in their seed) into one model, written as export writes one",
-        description="Settings (dtype, drop_unused_llm_layers) are fields of SoupConfig "
-                    "(trivla_drake/train/export_job.py); --print-config shows them.")
+    parser = _add_job_parser(
+        commands, "soup", run_soup, "SoupConfig (trivla_drake/train/export_job.py)", "dtype, drop_unused_llm_layers",
+        help="average the weights of policy checkpoints trained from one start (e.g. follow runs that differ in "
+             "their seed) into one model, written as export writes one")
     parser.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT",
                         help="two or more checkpoint folders with the same config.json and the same frozen "
                              "Systems 2 and 3 (runs' final/)")
     add_out_arguments(parser)
-    parser.set_defaults(run=run_soup)
     return parser
 
 
@@ -201,16 +207,15 @@ def run_refit_command(args: argparse.Namespace) -> int:
 
 def add_refit_parser(commands) -> argparse.ArgumentParser:
     """Register `refit` on an argparse subparsers object."""
-    parser = commands.add_parser(
-        "refit", help="re-fit a checkpoint's instruction-grounding read-out on rendered scenes and a dataset's "
-                      "frames (the shipped recipe's last training stage)",
-        description="Settings (scenes, steps, lr, threads, ...) are fields of RefitConfig "
-                    "(trivla_drake/train/refit_job.py); --print-config shows them.")
+    parser = _add_job_parser(
+        commands, "refit", run_refit_command, "RefitConfig (trivla_drake/train/refit_job.py)",
+        "scenes, steps, lr, threads, ...",
+        help="re-fit a checkpoint's instruction-grounding read-out on rendered scenes and a dataset's frames (the "
+             "shipped recipe's last training stage)")
     parser.add_argument("checkpoint", help="the model folder whose grounding read-out is re-fitted")
     parser.add_argument("--data", default=None, help="the LeRobot dataset it was trained on")
     add_out_arguments(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress output")
-    parser.set_defaults(run=run_refit_command)
     return parser
 
 

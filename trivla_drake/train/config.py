@@ -18,7 +18,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from trivla_drake.nn.config import without_removed_fields
+from trivla_drake.nn.config_dict import without_removed_fields
 
 STAGES = ("video", "vlm", "policy")
 GROUNDING_PHASES = ("joint", "bind", "follow")  # PolicyTrainConfig.grounding.phase

@@ -20,13 +20,9 @@ from typing import Any
 import numpy as np
 import torch.utils.data
 
-from trivla_drake.data.lerobot import (
-    EPISODE_COLUMN_DEFAULTS,
-    REMOVED_EPISODE_COLUMNS,
-    LeRobotReader,
-    aggregate_stats,
-    episode_stats,
-)
+from trivla_drake.data.lerobot_format import EPISODE_COLUMN_DEFAULTS, REMOVED_EPISODE_COLUMNS
+from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.data.lerobot_stats import aggregate_stats, episode_stats
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats
 

@@ -4,7 +4,7 @@
   `future_stride` apart) of one camera view, from frames decoded once and cached at System 3's
   video size (`FrameStore`).
 - `PolicyFeatureDataset`: state, action chunk and the cached System 2/3 features of one frame.
-- helpers: episode selection for `--fraction`, normalisation statistics from meta/stats.json, and the
+- helpers: normalisation statistics from meta/stats.json, and the
   checks that the dataset matches the model's state and action spaces.
 """
 
@@ -22,7 +22,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotReader, with_removed_columns
+from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY, with_removed_columns
+from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.data.samples import TrainingSamples
 from trivla_drake.nn.config import TriVLAConfig
 from trivla_drake.nn.normalization import NormalizationStats

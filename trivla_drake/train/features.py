@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from trivla_drake.data.durable import atomic_write_text
-from trivla_drake.data.lerobot import LeRobotReader
+from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.datasets import episode_content_fingerprint, episode_fingerprint, resize_frames

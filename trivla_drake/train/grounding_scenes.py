@@ -2,7 +2,7 @@
 
 The grounding (nn/instruction_grounding.py) learns where the block an instruction names lies from the
 demonstrations' frames. On those frames the shipped model's sub-goal lies a median 1.1 cm from its
-label; on unseen scenes 2.3 cm (results/subgoal_trust). It has seen too few layouts. A demonstration
+label; on unseen scenes 2.3 cm (research/subgoal_trust). It has seen too few layouts. A demonstration
 costs seconds of simulation; a rendered scene costs about 30 ms, and for a task whose first gripper
 event is a grasp its label needs no simulation at all: the oracle's plan, made from the scene, says
 where the hand will close.
@@ -38,7 +38,7 @@ GROUNDING_SCENES_FORMAT = 1
 GROUNDING_SCENE_TASKS = ("lift_block", "place_in_bowl", "stack_block", "rotate_block_left",
                          "rotate_block_right", "unstack_block")
 # The recorded tcp at a demonstration's first close lies this far above the plan's closing pose [m]
-# (0.46 cm in z, 0.00 cm in x-y, spread 0.02 cm, over 27 of the 360 clean demonstrations; results/grounding_scenes).
+# (0.46 cm in z, 0.00 cm in x-y, spread 0.02 cm, over 27 of the 360 clean demonstrations; research/grounding_scenes).
 CLOSE_TRACKING_LAG = np.array([0.0, 0.0, 0.0046])
 APPROACH_SPREAD = 0.01  # standard deviation [m] of the approach points' offset from the oracle's path, per axis
 IK_TOLERANCE = 0.002  # [m]: a scene whose arm pose misses its approach point by more is drawn again

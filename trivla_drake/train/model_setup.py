@@ -10,7 +10,8 @@ import torch
 from torch import nn
 
 from trivla_drake.nn.checkpoint import load_checkpoint, read_checkpoint_config
-from trivla_drake.nn.config import PRESETS, TriVLAConfig, make_config
+from trivla_drake.nn.config import TriVLAConfig
+from trivla_drake.nn.presets import PRESETS, make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 
@@ -187,7 +188,7 @@ def build_model(config: TrainConfig, resume_from: Path | None) -> TriVLA:
         if config.policy.grounding.phase == "bind" and not config.policy.grounding.keep:
             # A bind run learns the binding from a fresh grounding (a resumed one keeps its own): one
             # from a joint run stayed at chance when bound further, a fresh one bound
-            # (results/instruction_grounding).
+            # (research/instruction_grounding).
             torch.manual_seed(config.seed)
             model.policy.reset_grounding()
     else:

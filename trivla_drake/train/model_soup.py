@@ -1,7 +1,7 @@
 """A uniform weight average ("model soup") of models trained from one start.
 
 Follow runs that differ only in their seed land up to 0.08 apart in closed-loop success
-(results/follow_seeds): each one's System 1 is one draw. Their weights, fine-tuned for a few thousand
+(research/follow_seeds): each one's System 1 is one draw. Their weights, fine-tuned for a few thousand
 steps from the same checkpoint, lie close together (max |difference| 0.05 there), and the average of
 such weights is a model of its own, with one model's cost at run time (Wortsman et al. 2022, "Model
 soups"). Only trained parameters are averaged: buffers (the feature standardizers' statistics, fitted

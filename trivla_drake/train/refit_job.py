@@ -152,7 +152,7 @@ def run_refit(config: RefitConfig, *, progress: bool = True) -> dict:
     `report_path(config)`; returns the report. ValueError naming the field for a setting it cannot run with, before
     any model loads. Sets torch's thread count to `config.threads` while it runs."""
     from trivla_drake.data.durable import atomic_write_text
-    from trivla_drake.data.lerobot import LeRobotReader
+    from trivla_drake.data.lerobot_reader import LeRobotReader
     from trivla_drake.nn import load_checkpoint
     from trivla_drake.train.atomic_folder import check_replaceable_folder
     from trivla_drake.train.checkpoints import write_model_folder

@@ -12,7 +12,8 @@ import os
 
 import numpy as np
 
-from trivla_drake.data.lerobot import EPISODE_TASK_KEY, LeRobotWriter, vector_feature, video_feature
+from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY, vector_feature, video_feature
+from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.nn.config import EE_DELTA_ACTION_NAMES, PANDA_STATE_NAMES
 
 CAMERAS = ("observation.images.static", "observation.images.wrist")

@@ -138,7 +138,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
 
     reader, readers = None, []
     if config.stage in ("video", "policy"):
-        from trivla_drake.data.lerobot import LeRobotReader
+        from trivla_drake.data.lerobot_reader import LeRobotReader
 
         reader = LeRobotReader(config.data)
         readers = [reader, *(LeRobotReader(folder) for folder in config.extra_data)]
@@ -255,7 +255,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
             step += 1
             mean_loss = env.mean(float(loss.detach()))
             if not math.isfinite(mean_loss):
-                raise FloatingPointError(f"the loss became {mean_loss} at step {step}; lower --lr")
+                raise FloatingPointError(f"the loss became {mean_loss} at step {step}; lower lr (--set lr=...)")
             loss_ema = mean_loss if loss_ema is None else 0.98 * loss_ema + 0.02 * mean_loss
             now = time.time()
             step_times.append(now - tick)
