@@ -1,4 +1,5 @@
-"""Chain preludes (`collect --set prelude_tasks=N`): before the recorded task the oracle completes one or more
+"""Chain preludes (`collect --set prelude_tasks=N`, `evaluate --set prelude=N`; the registered episode start
+"chain_prelude", eval/episode_starts.py): before the recorded task the oracle completes one or more
 other tasks of a chain, unrecorded, so the demonstration starts where a chain's earlier tasks leave the
 scene and the hand, as the second to fifth tasks of a 5-task chain do. Never a lift (it leaves the block
 in the hand); a prelude that fails, or leaves the task no way to start, fails the attempt with the
@@ -39,11 +40,12 @@ def test_no_prelude_task_when_every_possible_task_is_excluded():
 
 def test_the_episode_starts_where_the_prelude_left_the_hand():
     from trivla_drake.eval.episode import run_episode
+    from trivla_drake.eval.episode_starts import make_episode_start
     from trivla_drake.tasks.oracle import OraclePolicy
 
     plain = run_episode("turn_on_light", 123, OraclePolicy(), keep_trajectory=True)
-    chained = run_episode("turn_on_light", 123, OraclePolicy(), keep_trajectory=True, prelude=1,
-                          prelude_policy=OraclePolicy())
+    chained = run_episode("turn_on_light", 123, OraclePolicy(), keep_trajectory=True,
+                          start=make_episode_start("chain_prelude", tasks=1))
     assert plain.success and chained.success, chained.reason
     assert plain.prelude == () and "prelude" not in plain.to_dict()
     assert len(chained.prelude) == 1 and chained.prelude[0] not in {"turn_on_light", "lift_block"}
@@ -55,32 +57,44 @@ def test_the_episode_starts_where_the_prelude_left_the_hand():
 
 
 def test_a_prelude_with_nothing_to_run_fails_the_episode_with_the_reason(monkeypatch):
-    from trivla_drake.eval import episode
+    from trivla_drake.eval import episode_starts
+    from trivla_drake.eval.episode import run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
 
-    monkeypatch.setattr(episode, "prelude_task", lambda scene, rng, exclude: None)  # no task possible
-    result = episode.run_episode("open_drawer", 3, OraclePolicy(), prelude=2, prelude_policy=OraclePolicy())
-    assert not result.success and result.steps == 0
+    monkeypatch.setattr(episode_starts, "prelude_task", lambda scene, rng, exclude: None)  # no task possible
+    result = run_episode("open_drawer", 3, OraclePolicy(), start=episode_starts.make_episode_start("chain_prelude",
+                                                                                                   tasks=2))
+    assert not result.success and result.steps == 0 and result.start_failed
     assert result.reason.startswith("prelude: no task can run")
+    assert not run_episode("open_drawer", 3, OraclePolicy(), max_steps=1).start_failed  # a plain failure is none
 
 
-@pytest.mark.parametrize("prelude", [-1, 1.5, True])
-def test_bad_prelude_counts_are_refused(prelude):
+def test_episode_starts_are_made_by_registered_name():
+    from trivla_drake.eval.episode_starts import EPISODE_STARTS, ChainPrelude, make_episode_start
+
+    assert "chain_prelude" in EPISODE_STARTS.names()
+    start = make_episode_start("chain_prelude", tasks=3)
+    assert isinstance(start, ChainPrelude) and start.tasks == 3 and start.policy.privileged
+    with pytest.raises(ValueError, match=r"unknown episode start 'home'; registered: .*chain_prelude"):
+        make_episode_start("home")
+    with pytest.raises(ValueError, match="settings of the episode start 'chain_prelude'.*count"):
+        make_episode_start("chain_prelude", count=2)
+
+
+@pytest.mark.parametrize("tasks", [0, -1, 5, 1.5, True])
+def test_bad_chain_prelude_settings_name_the_field(tasks):
+    from trivla_drake.eval.episode_starts import make_episode_start
+
+    with pytest.raises(ValueError, match="chain_prelude: tasks must be an integer from 1 to 4"):
+        make_episode_start("chain_prelude", tasks=tasks)
+
+
+def test_run_episode_refuses_a_start_that_is_no_episode_start():
     from trivla_drake.eval.episode import run_episode
     from trivla_drake.tasks.oracle import OraclePolicy
 
-    with pytest.raises(ValueError, match="prelude must be an integer"):
-        run_episode("open_drawer", 0, OraclePolicy(), prelude=prelude, prelude_policy=OraclePolicy())
-
-
-def test_a_prelude_needs_a_privileged_policy_to_run_it():
-    from trivla_drake.eval.episode import run_episode
-    from trivla_drake.eval.policies import RandomPolicy
-    from trivla_drake.tasks.oracle import OraclePolicy
-
-    for other in (None, RandomPolicy()):
-        with pytest.raises(ValueError, match="prelude_policy"):
-            run_episode("open_drawer", 0, OraclePolicy(), prelude=1, prelude_policy=other)
+    with pytest.raises(TypeError, match="start must be an episode start"):
+        run_episode("open_drawer", 0, OraclePolicy(), start=2)
 
 
 @pytest.mark.parametrize("value", [-1, 5, True, 1.0])
@@ -142,7 +156,7 @@ def test_success_is_pooled_by_the_task_just_before_and_failures_name_their_prelu
 
 
 def test_evaluate_redraws_a_failed_prelude_then_reports_its_reason(monkeypatch):
-    import trivla_drake.eval.episode as episode
+    import trivla_drake.eval.episode_starts as episode_starts
     from trivla_drake.eval.evaluate import PRELUDE_REDRAWS, EvalConfig, evaluate
 
     calls = []
@@ -151,7 +165,7 @@ def test_evaluate_redraws_a_failed_prelude_then_reports_its_reason(monkeypatch):
         calls.append(1)
         return None
 
-    monkeypatch.setattr(episode, "prelude_task", nothing_possible)
+    monkeypatch.setattr(episode_starts, "prelude_task", nothing_possible)
     report = evaluate(EvalConfig(policy="oracle", tasks=["open_drawer"], episodes=1, prelude=2), progress=False)
     assert len(calls) == PRELUDE_REDRAWS + 1
     (failure,) = report["tasks"]["open_drawer"]["failures"]

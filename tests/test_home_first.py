@@ -170,11 +170,11 @@ class FirstLook(Holding):
 
 def test_in_the_simulator_a_later_task_starts_from_the_start_pose():
     from trivla_drake.eval.episode import run_episode
-    from trivla_drake.tasks.oracle import OraclePolicy
+    from trivla_drake.eval.episode_starts import make_episode_start
 
     inner = FirstLook()
-    result = run_episode("turn_on_light", 123, HomeFirst(inner), keep_trajectory=True, prelude=1,
-                         prelude_policy=OraclePolicy(), max_steps=110)
+    result = run_episode("turn_on_light", 123, HomeFirst(inner), keep_trajectory=True,
+                         start=make_episode_start("chain_prelude", tasks=1), max_steps=110)
     assert len(result.prelude) == 1, result.reason
     tcp = np.asarray(result.trajectory.tcp_poses)
     home = home_tcp_pose()

@@ -11,7 +11,7 @@ actions are disturbed; the recorded actions stay the oracle's and each episode's
 frames. The dataset keeps the latest run's config as meta/collect_config.yaml.
 With `prelude_tasks` > 0 the oracle first completes 1 to `prelude_tasks` other tasks of a chain (drawn
 per attempt), unrecorded, and the episode starts where they left the scene and the hand, as the later
-tasks of a chain do (eval/episode.py, `run_episode(prelude=...)`); each episode's metadata lists them.
+tasks of a chain do (the episode start "chain_prelude", eval/episode_starts.py); each episode's metadata lists them.
 """
 
 from __future__ import annotations
@@ -72,15 +72,17 @@ def dataset_features(image_size: int, fps: float) -> dict[str, dict]:
 def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
     """Run one oracle attempt; on success stage its videos. Top level: runs in workers."""
     from trivla_drake.eval.episode import derive_seed, run_episode
+    from trivla_drake.eval.episode_starts import make_episode_start
     from trivla_drake.tasks.oracle import OraclePolicy
 
     seed = derive_seed(config.seed, task, attempt)
-    prelude = 0
-    if config.prelude_tasks:
+    start = None
+    if config.prelude_tasks:  # 1 to prelude_tasks tasks, drawn per attempt
         prelude = 1 + int(np.random.default_rng(derive_seed(seed, "prelude_tasks")).integers(config.prelude_tasks))
+        start = make_episode_start("chain_prelude", tasks=prelude)
     result = run_episode(
         task, seed, OraclePolicy(), image_size=config.image_size, keep_trajectory=True,
-        perturbation=config.disturbance(), prelude=prelude, prelude_policy=OraclePolicy() if prelude else None,
+        perturbation=config.disturbance(), start=start,
     )
     out = {"task": task, "attempt": attempt, **result.to_dict()}
     if not result.success:

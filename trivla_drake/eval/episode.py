@@ -13,6 +13,7 @@ import logging
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,8 +22,11 @@ from trivla_drake.eval.env import SimulationError, TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
-from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, prelude_task, sample_chain_scene
+from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, sample_chain_scene
 from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
+
+if TYPE_CHECKING:
+    from trivla_drake.eval.episode_starts import EpisodeStart
 
 _log = logging.getLogger(__name__)
 
@@ -77,8 +81,11 @@ class EpisodeResult:
     steps: int
     reason: str = ""  # why it failed ("" on success)
     trajectory: Trajectory | None = None
-    # The tasks another policy completed first, unrecorded (`run_episode(prelude=...)`), in order.
+    # The tasks completed first, unrecorded, by the episode's start (`run_episode(start=...)`, a chain prelude), in
+    # order.
     prelude: tuple[str, ...] = ()
+    # Whether the episode's start failed or left the task no way to start (then `reason` says why and no step ran).
+    start_failed: bool = False
     # With a hold check (`run_episode(hold_check=...)`): whether the success still held after the hand was held
     # still that long; None without a hold check or without a success.
     lasted: bool | None = None
@@ -251,31 +258,14 @@ def _run_subtask(
     return result, obs
 
 
-def _run_prelude(
-    env: TabletopEnv, obs: dict, policy: Policy, task_name: str, count: int, rng: np.random.Generator,
-    paraphrase: bool,
-) -> tuple[dict, TaskInstance | None, list[str], str]:
-    """`policy` completes `count` other tasks of a chain from the env's current state, unrecorded, each
-    drawn by `tasks.chains.prelude_task` (uniform over the tasks possible); then `task_name`'s
-    parameters and instruction are drawn in the state they left. Returns (obs, the instance or None,
-    the tasks completed, why there is no instance)."""
-    done: list[str] = []
+def run_unrecorded(
+    env: TabletopEnv, obs: dict, policy: Policy, instance: TaskInstance, seed: int
+) -> tuple[EpisodeResult, dict]:
+    """`policy` drives one task from the env's current state within the task's own step budget, nothing recorded
+    and nothing disturbed (the tasks of an episode start, eval/episode_starts.py); returns (its result, the last
+    observation)."""
     unrecorded = _Recorder(False, None, env.action_space.control_rate_hz)
-    for _ in range(count):
-        step = prelude_task(env.scene(), rng, exclude={task_name, *done})
-        if step is None:
-            return obs, None, done, f"prelude: no task can run after {done or 'the start'}"
-        sub, obs = _run_subtask(env, obs, policy, step, int(rng.integers(2**31)), get_task(step.task).max_steps,
-                                unrecorded)
-        if not sub.success:
-            return obs, None, done, f"prelude task {step.task}: {sub.reason}"
-        done.append(step.task)
-    task = get_task(task_name)
-    candidates = task.candidates(env.scene())
-    if not candidates:
-        return obs, None, done, f"prelude: {task_name} cannot start after {', '.join(done)}"
-    params = candidates[int(rng.integers(len(candidates)))]
-    return obs, TaskInstance(task_name, params, task.instruction(params, rng, paraphrase=paraphrase)), done, ""
+    return _run_subtask(env, obs, policy, instance, seed, get_task(instance.task).max_steps, unrecorded)
 
 
 def run_episode(
@@ -290,8 +280,7 @@ def run_episode(
     max_steps: int | None = None,
     scenario: Scenario | None = None,
     perturbation: Disturbance | None = None,
-    prelude: int = 0,
-    prelude_policy: Policy | None = None,
+    start: EpisodeStart | None = None,
     hold_check: float | None = None,
 ) -> EpisodeResult:
     """One episode of `task_name` from the initial state drawn with `seed`.
@@ -304,22 +293,18 @@ def run_episode(
     actions; its random draws come from their own stream derived from `seed`, so the scene is the same with and
     without.
 
-    With `prelude` > 0, `prelude_policy` (privileged: the oracle) first completes that many other tasks
-    of a chain (never a lift, which leaves a block in the hand), unrecorded and undisturbed, and the
-    episode's task starts where they left the scene and the hand, as the later tasks of a chain do;
-    its parameters and instruction are drawn in that state. A prelude that fails, or leaves the task
-    no way to start, fails the episode with the reason.
+    `start` (a registered episode start, eval/episode_starts.py, e.g. a chain prelude: the oracle first completes
+    other tasks of a chain, unrecorded and undisturbed) acts after the reset; the episode's task then starts where
+    it left the scene and the hand, its parameters and instruction drawn in that state. A start that fails, or
+    leaves the task no way to start, fails the episode with the reason (`EpisodeResult.start_failed`).
 
     A simulation failure (or a policy raising) ends the episode as a failure with its reason; it
     never escapes. `image_size` None renders no images unless the policy uses them or a video is
     recorded (then 224).
     """
     task = get_task(task_name)
-    if isinstance(prelude, bool) or not isinstance(prelude, int) or prelude < 0:
-        raise ValueError(f"prelude must be an integer >= 0 (tasks before the episode's), got {prelude!r}")
-    if prelude and (prelude_policy is None or not prelude_policy.privileged):
-        raise ValueError("prelude > 0 needs a privileged prelude_policy (the oracle) to complete the tasks before "
-                         "the episode's")
+    if start is not None and not callable(getattr(start, "begin", None)):
+        raise TypeError(f"start must be an episode start (eval/episode_starts.py, make_episode_start), got {start!r}")
     check_hold_check(hold_check)
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
@@ -328,18 +313,19 @@ def run_episode(
     spec, instance = sample_task_instance(task, rng, env.layout(), paraphrase=paraphrase)
     recorder = _Recorder(keep_trajectory, video_path, env.action_space.control_rate_hz)
     policy_seed = int(rng.integers(2**31))
-    done: list[str] = []
-    why = ""  # why the prelude left no episode to run
+    done: tuple[str, ...] = ()
+    why = ""  # why the start left no episode to run
     try:
         obs = env.reset(spec)
-        if prelude:
-            obs, chained, done, why = _run_prelude(env, obs, prelude_policy, task_name, prelude,
-                                                   np.random.default_rng(derive_seed(seed, "prelude")), paraphrase)
-            instance = chained or instance
-            if recorder.needs_images(env):  # the unrecorded prelude's last step rendered none
+        if start is not None:
+            started = start.begin(env, obs, task_name, seed, paraphrase)
+            obs, done, why = started.obs, started.prelude, started.reason
+            instance = started.instance or instance
+            if recorder.needs_images(env):  # the unrecorded start's last step rendered none
                 obs.update(env.images())
         if why:
-            result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0, why)
+            result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, 0, why,
+                                   start_failed=True)
         else:
             disturbance = None
             if perturbation is not None:
@@ -354,7 +340,7 @@ def run_episode(
         result = EpisodeResult(instance.task, instance.instruction, instance.params, seed, False, env.step_index)
         result.reason = f"{type(error).__name__}: {error}"
     result.seed = seed
-    result.prelude = tuple(done)
+    result.prelude = done
     result.trajectory = recorder.trajectory
     try:
         recorder.finish()

@@ -7,6 +7,7 @@ so a run with `workers` processes gives exactly the results of a serial run with
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -51,6 +52,14 @@ def _policy(spec: str, noise_scale: float | None = None, execute_steps: int | No
     return _POLICY_CACHE[key]
 
 
+@functools.lru_cache(maxsize=None)
+def _chain_prelude(tasks: int):
+    """The episode start "chain_prelude" of `tasks` tasks (eval/episode_starts.py), made once per process."""
+    from trivla_drake.eval.episode_starts import make_episode_start
+
+    return make_episode_start("chain_prelude", tasks=tasks)
+
+
 def _run_job(config: EvalConfig, job: tuple) -> dict:
     """One episode or chain; top level so that worker processes can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
@@ -71,11 +80,10 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 image_size=config.image_size,
                 video_path=video,
                 max_steps=config.max_steps,
-                prelude=config.prelude,
-                prelude_policy=_policy("oracle") if config.prelude else None,
+                start=_chain_prelude(config.prelude) if config.prelude else None,
                 hold_check=config.hold_check,
             )
-            if not (config.prelude and result.reason.startswith("prelude")):
+            if not result.start_failed:
                 break
         return result.to_dict()
     return run_chain(

@@ -71,7 +71,7 @@ def _draw(options: dict[str, list[tuple]], rng: np.random.Generator, paraphrase:
     return TaskInstance(name, params, TASKS[name].instruction(params, rng, paraphrase=paraphrase))
 
 
-# Tasks a prelude (eval/episode.py, `run_episode(prelude=...)`) never runs: a lift leaves the block in the
+# Tasks a prelude (the episode start "chain_prelude", eval/episode_starts.py) never runs: a lift leaves the block in the
 # hand, and the task after it in a chain is then always place or stack.
 _NOT_IN_PRELUDE = frozenset({"lift_block"})
 
