@@ -50,7 +50,7 @@ def test_bad_perturbations_are_clear_errors_naming_the_field():
     for bad in (-1.0, 100.0, float("nan")):
         with pytest.raises(ValueError, match=r"perturbation \(dart\): scale must be in \[0, "):
             CollectConfig(out="unused", episodes_per_task=1, perturbation=_dart(bad)).validate()
-    with pytest.raises(ValueError, match="perturbation.settings of dart: .*'rate'"):
+    with pytest.raises(ValueError, match=r"perturbation \(dart\): settings of the perturbation 'dart': .*'rate'"):
         CollectConfig(out="unused", episodes_per_task=1, perturbation=PluginConfig("dart", {"rate": 1.0})).validate()
     with pytest.raises(ValueError, match="perturbation.settings .* without a perturbation.name"):
         CollectConfig(out="unused", episodes_per_task=1, perturbation=PluginConfig("", {"scale": 1.0})).validate()

@@ -53,32 +53,3 @@ def test_a_checkpoint_that_is_not_one_says_what_it_is(capsys, tmp_path):
 def test_tables_name_the_checkpoint_flag(capsys, tmp_path):
     err = _error(capsys, "tables", "--full", str(tmp_path / "nope"), "--out", str(tmp_path / "t"))
     assert f"--full {tmp_path / 'nope'} is not a checkpoint directory" in err
-
-
-def test_the_cli_quiets_the_diffik_tracking_warning_only_while_it_runs():
-    """The suite's episodes press the hand on blocks: `trivla-drake` quiets the diff-IK's tracking warning (-v shows
-    it) while a command runs, and leaves the logger as it was afterwards (main() may run in a longer process)."""
-    import logging
-
-    from trivla_drake.cli import TRACKING_LOGGER_NAME, main
-
-    tracking = logging.getLogger(TRACKING_LOGGER_NAME)
-    seen = []
-    tracking.setLevel(logging.NOTSET)
-    import trivla_drake.cli as cli
-
-    original = cli.build_parser
-
-    def recording_parser():
-        parser = original()
-        for action in parser._subparsers._group_actions[0].choices.values():
-            action.set_defaults(run=lambda args: seen.append(tracking.level) or 0)
-        return parser
-
-    cli.build_parser = recording_parser
-    try:
-        assert main(["sim"]) == 0 and main(["-v", "sim"]) == 0
-    finally:
-        cli.build_parser = original
-    assert seen == [logging.ERROR, logging.WARNING]
-    assert tracking.level == logging.NOTSET

@@ -222,6 +222,8 @@ def test_home_first_is_a_registered_policy_wrapper_and_unknown_wrappers_are_name
     wrapped = wrap_policy(load_policy("random"), [HOME_FIRST])
     assert isinstance(wrapped, HomeFirst) and wrapped.name == "random+home"
     assert wrap_policy(wrapped, []) is wrapped
+    with pytest.raises(ValueError, match="settings of the policy wrapper 'home_first': .*'steps'"):
+        wrap_policy(load_policy("random"), [PluginConfig("home_first", {"steps": 3})])
     with pytest.raises(ValueError, match=r"policy_wrappers\[0\].name: unknown policy wrapper 'home_frist'; registered: "
                                          r"home_first"):
         EvalConfig(policy="random", tasks=["lift_block"], episodes=1,

@@ -81,6 +81,22 @@ def test_the_same_settings_give_the_same_bytes_with_or_without_the_cached_q_vl(c
     assert (tmp_path / "longer" / "model.safetensors").read_bytes() != first  # the bytes can tell runs apart
 
 
+def test_the_q_vl_cache_is_keyed_by_the_weights_and_config_alone(config, tmp_path, capsys):
+    """A checkpoint with tokenizer folders and a run's training state beside its weights is read (no folder is read as
+    a file) and keyed by its config.json and weights alone: a copy with them added finds the original's Q_vl."""
+    import shutil
+
+    run_refit(config, progress=False)
+    copy = tmp_path / "copy"
+    shutil.copytree(config.checkpoint, copy)
+    (copy / "tokenizer_vision_language").mkdir()
+    (copy / "tokenizer_vision_language" / "tokenizer.json").write_text("{}")
+    (copy / "training_state.pt").write_bytes(b"optimizer")
+    capsys.readouterr()
+    run_refit(dataclasses.replace(config, checkpoint=str(copy), out=str(tmp_path / "out2")), progress=True)
+    assert capsys.readouterr().out.count("Q_vl of") == 3
+
+
 def test_the_config_loads_typed_from_yaml():
     from pydrake.common.yaml import yaml_load_typed
 

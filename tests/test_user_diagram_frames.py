@@ -146,30 +146,55 @@ def test_a_hand_that_does_not_follow_is_reported_once_then_again_after_recoverin
         assert len(caplog.records) == 2
 
 
-def test_the_tracking_warning_thresholds_are_settings():
+def test_the_tracking_warning_thresholds_are_settings(caplog):
     diffik, context, simulator = _fixed_diffik(tracking_warning_distance_m=0.2, tracking_warning_after_s=0.1)
     hand = _hand_in_world()
     diffik.GetInputPort("ee_target").FixValue(context, RigidTransform(hand.rotation(), hand.translation() + 0.1))
-    simulator.AdvanceTo(0.5)
-    distance, _ = diffik.GetOutputPort("tracking_error").Eval(context)
-    assert distance == pytest.approx(0.1 * np.sqrt(3), abs=1e-9)  # below 0.2 m: no warning state
-    assert np.isnan(context.get_discrete_state(1).value()[2])
+    with caplog.at_level(logging.WARNING, logger="trivla_drake.systems.diffik_system"):
+        simulator.AdvanceTo(0.5)
+        distance, _ = diffik.GetOutputPort("tracking_error").Eval(context)
+        assert distance == pytest.approx(0.1 * np.sqrt(3), abs=1e-9)  # below 0.2 m: no warning state
+        assert np.isnan(context.get_discrete_state(1).value()[2])
+        assert not caplog.records
+        # Farther than 0.2 m: warned once the hand has stayed far for 0.1 s, long before the default 1 s.
+        diffik.GetInputPort("ee_target").FixValue(context, RigidTransform(hand.rotation(), hand.translation() + 0.2))
+        simulator.AdvanceTo(0.55)
+        assert not caplog.records
+        simulator.AdvanceTo(0.65)
+        assert len(caplog.records) == 1 and "tracking_error" in caplog.records[0].getMessage()
+
+
+def test_the_tracking_check_can_be_turned_off(caplog):
+    diffik, context, simulator = _fixed_diffik(warn_tracking=False, tracking_warning_after_s=0.1)
+    hand = _hand_in_world()
+    diffik.GetInputPort("ee_target").FixValue(context, RigidTransform(hand.rotation(), hand.translation() + 0.3))
+    with caplog.at_level(logging.DEBUG, logger="trivla_drake.systems.diffik_system"):
+        simulator.AdvanceTo(2.0)
+    assert not caplog.records
+    assert np.isnan(diffik.GetOutputPort("tracking_error").Eval(context)).all()  # documented: NaN when off
+    assert diffik.GetOutputPort("status").Eval(context)[0] == 0.0
+
+
+def test_the_pose_only_forward_kinematics_is_ee_pose():
+    kinematics = PandaKinematics()
+    rng = np.random.default_rng(0)
+    for q in [HOME_Q, *rng.uniform(kinematics.q_lower, kinematics.q_upper, size=(20, 7))]:
+        np.testing.assert_allclose(kinematics.pose(q), kinematics.ee_pose(q), rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(tracking_warning_distance_m=0.0), "tracking_warning_distance_m"),
     (dict(tracking_warning_after_s=float("nan")), "tracking_warning_after_s"),
     (dict(X_WB=np.eye(4)), "X_WB must be a pydrake.math.RigidTransform"),
-    (dict(X_WB=RigidTransform(), X_WBase=RigidTransform()), "X_WBase is its old name"),
+    (dict(warn_tracking=1), "warn_tracking"),
 ])
 def test_bad_diffik_settings_name_the_argument(kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         DifferentialIKSystem(**kwargs)
 
 
-@pytest.mark.parametrize("argument", ["X_WB", "X_WBase"])
-def test_the_diffik_maps_a_world_target_into_the_moved_base_under_either_argument_name(argument):
-    diffik, context, simulator = _fixed_diffik(**{argument: MOVED})
+def test_the_diffik_maps_a_world_target_into_the_moved_base():
+    diffik, context, simulator = _fixed_diffik(X_WB=MOVED)
     diffik.GetInputPort("ee_target").FixValue(context, _hand_in_world(MOVED))
     simulator.AdvanceTo(0.05)
     np.testing.assert_allclose(diffik.GetOutputPort("tracking_error").Eval(context), [0.0, 0.0], atol=1e-9)

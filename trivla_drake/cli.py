@@ -12,10 +12,6 @@ import sys
 # turn a 0.1 s inference into seconds; passive waiting keeps them polite. Must precede torch.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-# The flags of `demo` (DemoConfig fields of the same names); the other fields are set with --set or --config.
-DEMO_FLAGS = ("policy", "checkpoint", "preset", "task", "instruction", "episodes", "chains", "seed", "latency",
-              "meshcat", "record")
-
 
 def _print_result(result: dict, as_json: bool, title: str) -> None:
     if as_json:
@@ -28,11 +24,10 @@ def _print_result(result: dict, as_json: bool, title: str) -> None:
 
 
 def _cmd_sim(args) -> int:
-    from trivla_drake.eval.cli_commands import command_config
+    from trivla_drake.eval.cli_commands import SIM_FLAGS, command_config, flag_values
     from trivla_drake.eval.sim_config import SimConfig
 
-    config = command_config(SimConfig, args, {"seconds": args.seconds, "meshcat": args.meshcat,
-                                              "record": args.record})
+    config = command_config(SimConfig, args, flag_values(args, SIM_FLAGS))
     if config is None:
         return 0
     config.validate()
@@ -64,10 +59,9 @@ def _set_torch_threads(threads: int) -> None:
 
 def _cmd_bench(args) -> int:
     from trivla_drake.eval.bench_config import BenchConfig
-    from trivla_drake.eval.cli_commands import command_config
+    from trivla_drake.eval.cli_commands import BENCH_FLAGS, command_config, flag_values
 
-    config = command_config(BenchConfig, args, {"model": args.model, "preset": args.preset,
-                                                "checkpoint": args.checkpoint})
+    config = command_config(BenchConfig, args, flag_values(args, BENCH_FLAGS))
     if config is None:
         return 0
     config.validate()
@@ -100,13 +94,13 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from trivla_drake.eval.cli_commands import command_config
+    from trivla_drake.eval.cli_commands import DEMO_FLAGS, command_config, flag_values
     from trivla_drake.eval.demo import run_oracle_demo, run_trivla_demo
     from trivla_drake.eval.demo_config import DemoConfig
     from trivla_drake.station.meshcat_setup import make_meshcat, save_static_html
     from trivla_drake.systems.latency import LatencyModel
 
-    config = command_config(DemoConfig, args, {name: getattr(args, name) for name in DEMO_FLAGS})
+    config = command_config(DemoConfig, args, flag_values(args, DEMO_FLAGS))
     if config is None:
         return 0
     config.validate()  # all before a model loads or a simulation runs
@@ -293,19 +287,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# DifferentialIKSystem's tracking warning (trivla_drake/systems/diffik_system.py; named here so the CLI loads no Drake).
-TRACKING_LOGGER_NAME = "trivla_drake.systems.diffik_system.tracking"
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Drake's parser warnings (ROS-only URDF tags) are noise for a user; -v shows them.
     logging.getLogger("drake").setLevel(logging.INFO if args.verbose else logging.ERROR)
-    # The diff-IK's "hand far from its target" warning is for diagrams of one's own; in the suite's episodes a hand
-    # pressed against a block or the table for a second is part of the task (-v shows it).
-    tracking = logging.getLogger(TRACKING_LOGGER_NAME)
-    tracking_level = tracking.level
-    tracking.setLevel(logging.WARNING if args.verbose else logging.ERROR)
     try:
         return args.run(args)
     except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors
@@ -318,8 +303,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"trivla-drake {args.command}: error: this command needs Drake (pip install drake), which is missing or too old: {error}",
               file=sys.stderr)
         return 2
-    finally:
-        tracking.setLevel(tracking_level)  # main() may run in a process that goes on (tests, notebooks)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,10 @@ import argparse
 import copy
 import dataclasses as dc
 import difflib
+import json
 import os
 import re
+import shlex
 import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, Optional
@@ -109,10 +111,14 @@ def apply_override(config, override: str, *, where: Optional[str] = None):
 
 
 def dump_config(config) -> str:
-    """`config` as YAML: a comment naming its schema, then every field (defaults included)."""
+    """`config` as YAML: a comment naming its schema, then every field (defaults included). Where Drake is not
+    installed (a training machine may lack it) PyYAML writes the same fields, which `load_config` and the training
+    checkpoints' reader read alike."""
     schema = type(config)
     try:
         text = _drake_yaml().yaml_dump_typed(config)
+    except ModuleNotFoundError:
+        text = yaml.safe_dump(dc.asdict(config), sort_keys=False)
     except Exception as error:  # e.g. a tuple field: NotImplementedError
         raise ConfigError(f"cannot write {schema.__name__} as YAML: {error}") from None
     return f"# {schema.__module__}.{schema.__qualname__}\n{text}"
@@ -153,6 +159,56 @@ def with_flags(config, flags: Mapping[str, Any]):
 def config_from_args(schema: type, args: argparse.Namespace, *, defaults=None):
     """The `schema` config given by the `--config` and `--set` arguments of add_config_arguments."""
     return load_config(schema, args.config, args.overrides, defaults=defaults)
+
+
+def leaf_fields(config) -> dict[str, Any]:
+    """The dataclass `config`'s fields as {dotted name: value}, nested dataclasses flattened (lists and dicts whole,
+    dataclasses inside them as dicts)."""
+    leaves: dict[str, Any] = {}
+    for field in dc.fields(config):
+        value = getattr(config, field.name)
+        if dc.is_dataclass(value):
+            leaves.update({f"{field.name}.{name}": inner for name, inner in leaf_fields(value).items()})
+        else:
+            leaves[field.name] = [dc.asdict(item) if dc.is_dataclass(item) else item for item in value] \
+                if isinstance(value, list) else value
+    return leaves
+
+
+def flag_words(flag: str, value: Any) -> list[str]:
+    """The command-line words setting a field to `value` with its `flag`: for a boolean the bare flag where it is true
+    (a `--no-...` flag: where it is false), a comma-separated list, else the flag and the value."""
+    if isinstance(value, bool):
+        return [flag] if value != flag.startswith("--no-") else []
+    if isinstance(value, list):
+        return [flag, ",".join(str(item) for item in value)]
+    return [flag, str(value)]
+
+
+def yaml_value(value: Any) -> str:
+    """`value` as a `--set` reads it back: a plain string where YAML reads it as that string, else JSON (YAML)."""
+    if isinstance(value, str) and value and value.strip() == value and yaml.safe_load(value) == value:
+        return value
+    return json.dumps(value)
+
+
+def describe_command(command: str, config, flags: Mapping[str, str], *, leading: Iterable[str] = (),
+                     skip: Iterable[str] = (), always: Iterable[str] = ()) -> str:
+    """`trivla-drake COMMAND` with the `leading` words, then the flag of each field in `flags` (dotted field -> flag)
+    that differs from the schema's default (or is in `always` and not None), then `--set dotted.field=value` for
+    every other field (but `skip`) that differs: a shell-quoted command line that runs `config`."""
+    defaults = leaf_fields(type(config)())
+    skip, always = set(skip), set(always)
+    flagged, overrides = [], []
+    for dotted, value in leaf_fields(config).items():
+        shown = dotted in always and value is not None
+        if dotted in skip or (not shown and dotted in defaults and value == defaults[dotted]):
+            continue
+        if dotted in flags:
+            flagged += flag_words(flags[dotted], value)
+        else:
+            overrides += ["--set", f"{dotted}={yaml_value(value)}"]
+    return " ".join(shlex.quote(word) for word in ["trivla-drake", command, *leading, *flagged, *overrides])
 
 
 def _drake_yaml():

@@ -32,7 +32,7 @@ def copy_dataset(config: DatasetCopyConfig) -> None:
         raise ValueError(f"DatasetCopyConfig.dest {config.dest} exists already: it is kept as it is (remove it to copy "
                          "again)")
     with atomic_folder(config.dest) as tmp:
-        shutil.copytree(config.source, tmp, dirs_exist_ok=True, symlinks=False)
+        shutil.copytree(config.source, tmp, dirs_exist_ok=True)
 
 
 def dataset_copy_done(config: DatasetCopyConfig) -> bool:

@@ -30,6 +30,11 @@ EVALUATE_FLAGS = {"policy": "--policy", "tasks": "--tasks", "episodes": "--episo
 # `tables` (registered in cli.py): its TablesConfig fields' flags, and its checkpoints' (role -> flag).
 TABLES_FLAGS = {"out": "--out", "episodes": "--episodes", "seeds": "--seeds", "workers": "--workers"}
 TABLES_CHECKPOINT_FLAGS = {"full": "--full", "system1_3": "--system1-3", "system1": "--system1", "data10": "--data10"}
+# `sim`, `demo` and `bench` (registered in cli.py): their SimConfig, DemoConfig and BenchConfig fields' flags.
+SIM_FLAGS = {"seconds": "--seconds", "meshcat": "--meshcat", "record": "--record"}
+DEMO_FLAGS = {name: "--" + name for name in ("policy", "checkpoint", "preset", "task", "instruction", "episodes",
+                                              "chains", "seed", "latency", "meshcat", "record")}
+BENCH_FLAGS = {"model": "--model", "preset": "--preset", "checkpoint": "--checkpoint"}
 
 
 def flag_values(args: argparse.Namespace, flags: dict[str, str]) -> dict[str, Any]:

@@ -45,7 +45,7 @@ def make_closed_loop(
         scenario = with_cameras_held_rarely(scenario)
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
-    policy = add_trivla_policy(builder, station, model, rates=rates, seed=seed)
+    policy = add_trivla_policy(builder, station, model, rates=rates, seed=seed, warn_tracking=False)
     if instruction is None:
         builder.ExportInput(policy.GetInputPort("instruction"), "instruction")
     else:

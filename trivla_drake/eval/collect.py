@@ -39,7 +39,7 @@ from trivla_drake.data.lerobot_format import (
 )
 from trivla_drake.data.lerobot_stats import image_stats
 from trivla_drake.data.lerobot_writer import LeRobotWriter
-from trivla_drake.eval.collect_config import MAX_PRELUDE_TASKS, CollectConfig  # noqa: F401  (read from here too)
+from trivla_drake.eval.collect_config import CollectConfig
 from trivla_drake.eval.evaluate import results_in_order
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 
@@ -168,12 +168,11 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     if config.workers > 1:
         pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"))
     try:
-        while True:
-            batch = _next_batch(config, done, state.failed)
-            first = next(batch, None)
-            if first is None:
-                break
-            for result in _run_ordered(config, itertools.chain([first], batch), pool):
+        ran = True
+        while ran:  # until a batch has no attempts left to run
+            ran = False
+            for result in _run_ordered(config, _next_batch(config, done, state.failed), pool):
+                ran = True
                 task, attempt = result["task"], result["attempt"]
                 if not result["success"]:
                     state.add_failure(task, attempt, result["reason"])

@@ -72,7 +72,7 @@ class TabletopEnv:
         builder = DiagramBuilder()
         self._built_scenario = self._scenario()
         station = builder.AddNamedSystem("station", make_station(self._built_scenario))
-        diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem())
+        diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem(warn_tracking=False))
         executor = builder.AddNamedSystem("executor", ActionExecutor(self.action_space))
         state = station.GetOutputPort("panda.state")
         builder.Connect(state, diffik.GetInputPort("robot_state"))

@@ -103,8 +103,6 @@ def _worker_init() -> None:
     import torch
 
     logging.getLogger("drake").setLevel(logging.ERROR)
-    # The suite's episodes press the hand against blocks on purpose: the diff-IK's tracking warning is noise here.
-    logging.getLogger("trivla_drake.systems.diffik_system.tracking").setLevel(logging.ERROR)
     torch.set_num_threads(1)  # one process per core: threads would only fight over the cores
 
 

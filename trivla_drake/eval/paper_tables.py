@@ -19,13 +19,13 @@ import functools
 import hashlib
 import json
 import math
-import os
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.eval.evaluate import EvalConfig, evaluate
 from trivla_drake.eval.tables_config import ROLES, TablesConfig  # noqa: F401  (read from here too)
 
@@ -49,13 +49,10 @@ def _pm(mean: float, stderr: float) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _checkpoint_fingerprint(checkpoint: str) -> str:
-    """sha256 over a checkpoint's config.json and weights (computed once per path and process)."""
-    digest = hashlib.sha256()
-    for name in ("config.json", "model.safetensors"):
-        with open(Path(checkpoint) / name, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                digest.update(block)
-    return digest.hexdigest()
+    """`checkpoint_digest` of a checkpoint (computed once per path and process)."""
+    from trivla_drake.nn.checkpoint import checkpoint_digest
+
+    return checkpoint_digest(checkpoint)
 
 
 def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> dict:
@@ -82,10 +79,7 @@ def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> d
         except (json.JSONDecodeError, KeyError):
             pass  # unreadable: compute it again
     result = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    tmp.write_text(json.dumps({"checkpoint": checkpoint, "settings": settings, "result": result}))
-    tmp.replace(path)
+    atomic_write_text(path, json.dumps({"checkpoint": checkpoint, "settings": settings, "result": result}))
     return result
 
 

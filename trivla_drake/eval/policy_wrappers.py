@@ -32,7 +32,7 @@ def check_policy_wrappers(wrappers: Sequence[PluginConfig], field: str = "policy
 
 def wrap_policy(policy, wrappers: Sequence[PluginConfig]):
     """`policy` inside `wrappers` (each made with its settings), the first innermost; ValueError for an unknown
-    name."""
+    name or a setting its wrapper does not take."""
     for wrapper in wrappers:
         policy = POLICY_WRAPPERS.make(wrapper.name, policy, **wrapper.settings)
     return policy

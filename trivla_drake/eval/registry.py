@@ -4,6 +4,7 @@ wrappers of eval/policy_wrappers.py), registered by name and made by name, in th
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -36,5 +37,22 @@ class Registry:
         return name
 
     def make(self, name: str, *args: Any, **settings: Any) -> Any:
-        """What the factory registered as `name` makes of `args` and `settings` (an unknown name: see `check`)."""
-        return self._factories[self.check(name)](*args, **settings)
+        """What the factory registered as `name` makes of `args` and `settings` (an unknown name: see `check`).
+        ValueError naming the kind, `name` and the setting if the factory does not take `settings` (an unknown or
+        a missing one); errors raised by the factory itself pass through unchanged."""
+        factory = self._factories[self.check(name)]
+        try:
+            signature = inspect.signature(factory)
+        except (TypeError, ValueError):  # no signature to check against (a builtin): the factory's own errors
+            signature = None
+        if signature is not None:
+            try:
+                signature.bind(*args, **settings)
+            except TypeError as error:
+                parameters = signature.parameters.values()
+                takes = [p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+                unknown = [key for key in settings if key not in takes]
+                if unknown and not any(p.kind is p.VAR_KEYWORD for p in parameters):  # named first, as Python does
+                    error = f"unknown setting(s) {', '.join(map(repr, unknown))}; it takes {', '.join(takes) or 'none'}"
+                raise ValueError(f"settings of the {self.kind} {name!r}: {error}") from None
+        return factory(*args, **settings)

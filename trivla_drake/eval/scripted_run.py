@@ -36,7 +36,7 @@ def make_scripted_diagram(
     """Station + DifferentialIKSystem + ScriptedEndEffectorPath, wired closed loop."""
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", make_station(scenario, meshcat=meshcat))
-    diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem())
+    diffik = builder.AddNamedSystem("diffik", DifferentialIKSystem(warn_tracking=False))
     script = builder.AddNamedSystem("scripted_path", ScriptedEndEffectorPath(path))
     builder.Connect(script.GetOutputPort("ee_target"), diffik.GetInputPort("ee_target"))
     builder.Connect(station.GetOutputPort("panda.state"), diffik.GetInputPort("robot_state"))

@@ -14,32 +14,13 @@ import dataclasses as dc
 import json
 import shlex
 from pathlib import Path
-from typing import Any
 
-import yaml
-
+from trivla_drake.config_io import describe_command
 from trivla_drake.eval.cli_commands import COLLECT_FLAGS, EVALUATE_FLAGS, TABLES_CHECKPOINT_FLAGS, TABLES_FLAGS
 from trivla_drake.eval.collect_config import CollectConfig
 from trivla_drake.eval.evaluate_config import EvalConfig
 from trivla_drake.eval.tables_config import TablesConfig
 from trivla_drake.recipe import register_stage_kind
-
-
-def describe_command(command: str, config, flags: dict[str, str], *, leading: tuple[str, ...] = (),
-                     skip: tuple[str, ...] = ()) -> str:
-    """`trivla-drake COMMAND` with the `leading` words, then the flag of each field in `flags` that differs from the
-    schema's default, then `--set dotted.field=value` for every other field (but `skip`) that differs: a command
-    that runs `config`."""
-    defaults = _leaves(type(config)())
-    words = ["trivla-drake", command, *leading]
-    for dotted, value in _leaves(config).items():
-        if dotted in skip or (dotted in defaults and value == defaults[dotted]):
-            continue
-        if dotted in flags:
-            words += _flag_words(flags[dotted], value)
-        else:
-            words += ["--set", f"{dotted}={_yaml_value(value)}"]
-    return " ".join(shlex.quote(word) for word in words)
 
 
 def collect_is_done(config: CollectConfig, workdir: str = "") -> bool:
@@ -120,36 +101,6 @@ def run_tables(config: TablesConfig, workdir: str = "") -> None:
         write_tables(make_tables(config), config.out, config)
     finally:
         torch.set_num_threads(threads)
-
-
-def _leaves(config) -> dict[str, Any]:
-    """The dataclass `config`'s fields as {dotted name: value}, nested dataclasses flattened (lists and dicts whole,
-    dataclasses inside them as dicts)."""
-    leaves: dict[str, Any] = {}
-    for field in dc.fields(config):
-        value = getattr(config, field.name)
-        if dc.is_dataclass(value):
-            leaves.update({f"{field.name}.{name}": inner for name, inner in _leaves(value).items()})
-        else:
-            leaves[field.name] = [dc.asdict(item) if dc.is_dataclass(item) else item for item in value] \
-                if isinstance(value, list) else value
-    return leaves
-
-
-def _flag_words(flag: str, value: Any) -> list[str]:
-    """The command-line words setting `flag` to `value` (a bare flag for true, a comma-separated list)."""
-    if isinstance(value, bool):
-        return [flag] if value else []
-    if isinstance(value, list):
-        return [flag, ",".join(str(item) for item in value)]
-    return [flag, str(value)]
-
-
-def _yaml_value(value: Any) -> str:
-    """`value` as a `--set` reads it back: a plain string where YAML reads it as that string, else JSON (YAML)."""
-    if isinstance(value, str) and yaml.safe_load(value) == value and value.strip() == value and value:
-        return value
-    return json.dumps(value)
 
 
 register_stage_kind("collect", CollectConfig, run=run_collect, is_done=collect_is_done, describe=describe_collect)

@@ -4,6 +4,7 @@ statistics), plus the tokenizer files when a pretrained tokenizer is used."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from typing import Any
@@ -89,6 +90,17 @@ def save_checkpoint(model: TriVLA, directory: str, *, weights_dtype: str = "floa
     save_file(weights, os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
     with open(os.path.join(directory, CONFIG_FILE), "w") as f:
         json.dump(meta, f, indent=2)
+
+
+def checkpoint_digest(directory: str | os.PathLike) -> str:
+    """sha256 over a checkpoint's config.json and weights, streamed (the key of results computed from it: stored
+    evaluations, the grounding re-fit's Q_vl cache). Tokenizer folders and a run's training state are left out."""
+    digest = hashlib.sha256()
+    for name in (CONFIG_FILE, WEIGHTS_FILE):
+        with open(os.path.join(directory, name), "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()
 
 
 def _not_a_checkpoint(directory: str) -> str:

@@ -69,6 +69,12 @@ class PandaKinematics:
         jacobian = pin.getFrameJacobian(self.model, self.data, self._ee_id, pin.LOCAL_WORLD_ALIGNED)
         return pose, jacobian
 
+    def pose(self, q: np.ndarray) -> np.ndarray:
+        """`ee_pose(q)` by forward kinematics alone (no Jacobian): for callers that need the pose only."""
+        q = self.check_configuration(q)
+        pin.forwardKinematics(self.model, self.data, q)
+        return pin.updateFramePlacement(self.model, self.data, self._ee_id).homogeneous
+
     def ee_pose(self, q: np.ndarray) -> np.ndarray:
         """Pose of the end-effector frame in the world (base) frame, as a 4x4 homogeneous matrix."""
         return self.forward(q)[0]

@@ -15,8 +15,6 @@ from trivla_drake.robot.panda_kinematics import PandaKinematics
 from trivla_drake.systems.robot_base import base_pose_matrix
 
 _log = logging.getLogger(__name__)
-# Its own logger, so a harness whose hand is blocked on purpose (a push against a block) can quiet it alone.
-TRACKING_LOGGER = logging.getLogger(__name__ + ".tracking")
 N_ARM = 7
 # If the arm lags its commanded position by more than this [rad] (a collision, say), the
 # integrator restarts from the measured position instead of winding up.
@@ -35,10 +33,12 @@ class DifferentialIKSystem(LeafSystem):
     Output `status`: 1-vector, 0 solved, 1 solved inaccurately, 2 solver failed (held),
     3 target rejected (NaN/inf; held).
     Output `tracking_error`: 2-vector [distance [m], angle [rad]] between the measured hand (forward
-    kinematics of the measured q) and `ee_target` at the last tick (NaN before the first tick and while
-    the target is rejected). A warning is logged once when the distance stays above
-    `tracking_warning_distance_m` for `tracking_warning_after_s` (an arm that does not follow its
-    setpoints: a driver not connected, a blocked arm), and again after it has recovered and lost track anew.
+    kinematics of the measured q) and `ee_target` at the last tick (NaN before the first tick, while
+    the target is rejected, and always when `warn_tracking` is False). A warning is logged once when the
+    distance stays above `tracking_warning_distance_m` for `tracking_warning_after_s` (an arm that does not
+    follow its setpoints: a driver not connected, a blocked arm), and again after it has recovered and lost
+    track anew. `warn_tracking=False` turns the check off (no forward kinematics, no warning): for harnesses
+    whose hand is blocked on purpose (pressed on a block); the setpoints do not depend on it.
 
     The kinematics are the Panda's in its base frame B (`panda_link0`); `X_WB`, the base's pose in the
     world (identity by default), maps the world-frame target into it. The commanded position is integrated
@@ -53,16 +53,13 @@ class DifferentialIKSystem(LeafSystem):
         *,
         kinematics: PandaKinematics | None = None,
         X_WB: RigidTransform | None = None,
-        X_WBase: RigidTransform | None = None,
         tracking_warning_distance_m: float = 0.05,
         tracking_warning_after_s: float = 1.0,
+        warn_tracking: bool = True,
     ):
         super().__init__()
-        if X_WBase is not None:  # the argument's first name
-            if X_WB is not None:
-                raise ValueError("DifferentialIKSystem: give X_WB (the robot base's pose in the world) only; "
-                                 "X_WBase is its old name")
-            X_WB = X_WBase
+        if not isinstance(warn_tracking, bool):
+            raise ValueError(f"DifferentialIKSystem warn_tracking must be True or False, got {warn_tracking!r}")
         for name, value in (("tracking_warning_distance_m", tracking_warning_distance_m),
                             ("tracking_warning_after_s", tracking_warning_after_s)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
@@ -80,6 +77,7 @@ class DifferentialIKSystem(LeafSystem):
         self._X_BW = np.eye(4) if X_WB_matrix is None else RigidTransform(X_WB_matrix).inverse().GetAsMatrix4()
         self._warning_distance = float(tracking_warning_distance_m)
         self._warning_after = float(tracking_warning_after_s)
+        self._warn_tracking = warn_tracking
         self._target_port = self.DeclareAbstractInputPort("ee_target", AbstractValue.Make(RigidTransform()))
         self._state_port = self.DeclareVectorInputPort("robot_state", 2 * (N_ARM + 2))
         # Discrete state: [q_commanded (7), status (1)], and apart [distance, angle, far since [s] (NaN while
@@ -123,13 +121,14 @@ class DifferentialIKSystem(LeafSystem):
                 _log.warning("DifferentialIKSystem: the QP failed at t = %.3f s; holding position until it solves",
                              context.get_time())
             next_state = np.append(result.q_next, status)
-            tracking = self._check_tracking(context.get_time(), q_measured, X_BTarget, tracking)
+            if self._warn_tracking:
+                tracking = self._check_tracking(context.get_time(), q_measured, X_BTarget, tracking)
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(next_state)
         discrete_state.get_mutable_vector(self._tracking_index).SetFromVector(tracking)
 
     def _check_tracking(self, t: float, q_measured: np.ndarray, X_BTarget: np.ndarray, previous) -> list[float]:
         """The next tracking state [distance, angle, far since, warned], warning when the hand has stayed far."""
-        error = pose_error(self._kinematics.ee_pose(q_measured), X_BTarget)
+        error = pose_error(self._kinematics.pose(q_measured), X_BTarget)
         distance, angle = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
         far_since, warned = previous[2], previous[3]
         if distance <= self._warning_distance:
@@ -137,7 +136,7 @@ class DifferentialIKSystem(LeafSystem):
         if math.isnan(far_since):
             far_since = t
         if not warned and t - far_since >= self._warning_after - 1e-9:
-            TRACKING_LOGGER.warning("DifferentialIKSystem: the measured hand has stayed more than %.3f m from 'ee_target' for "
+            _log.warning("DifferentialIKSystem: the measured hand has stayed more than %.3f m from 'ee_target' for "
                          "%.2f s (now %.3f m at t = %.3f s): is the arm following 'position_setpoint' (a driver "
                          "connected, the arm not blocked)? See the output 'tracking_error'",
                          self._warning_distance, t - far_since, distance, t)

@@ -27,6 +27,7 @@ def add_trivla_policy(
     X_WB: RigidTransform | None = None,
     diffik_params: DiffIKParams | None = None,
     name: str = "trivla_policy",
+    warn_tracking: bool = True,
 ) -> TriVLAPolicy:
     """Add the policy and a DifferentialIKSystem (named `{name}_diffik`) to `builder` and wire them.
 
@@ -39,7 +40,8 @@ def add_trivla_policy(
     ports, rendered when Systems 2 and 3 read them at their ticks, so the images show the same instant as
     the robot state, as in the demonstrations; a held `.rgb_image` port would hand the policy a frame up to
     1/fps old. The policy's `instruction` input is left for the caller to connect (a ConstantValueSource
-    of a str, or a task's instruction source).
+    of a str, or a task's instruction source). `warn_tracking=False` turns off the diff-IK's "hand far from
+    its target" check (for harnesses whose hand is pressed on a block on purpose).
     """
     ports = {}
     for argument, value, kind in (("static_camera", static_camera, OutputPort),
@@ -49,7 +51,8 @@ def add_trivla_policy(
                                   ("gripper_width", gripper_width, InputPort)):
         ports[argument] = _port(station, argument, value, kind)
     policy = builder.AddNamedSystem(name, TriVLAPolicy(model, rates, seed=seed, X_WB=X_WB))
-    diffik = builder.AddNamedSystem(f"{name}_diffik", DifferentialIKSystem(diffik_params, X_WB=X_WB))
+    diffik = builder.AddNamedSystem(f"{name}_diffik", DifferentialIKSystem(diffik_params, X_WB=X_WB,
+                                                                                  warn_tracking=warn_tracking))
     builder.Connect(ports["static_camera"], policy.GetInputPort("static_rgb"))
     builder.Connect(ports["wrist_camera"], policy.GetInputPort("wrist_rgb"))
     builder.Connect(ports["robot_state"], policy.GetInputPort("robot_state"))

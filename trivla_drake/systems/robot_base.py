@@ -14,9 +14,9 @@ BASE_FRAME = "panda_link0"
 
 
 def base_pose_matrix(X_WB: RigidTransform | None, name: str = "X_WB") -> np.ndarray | None:
-    """X_WB as a 4x4 matrix, or None when it is None or exactly the identity (the caller then skips the
-    transform, so a base at the origin gives bit for bit what it gave before bases could move).
-    TypeError naming `name` unless it is a RigidTransform."""
+    """X_WB as a 4x4 matrix, or None when it is None or exactly the identity (the caller may then skip the
+    transform, or apply an exact identity). TypeError naming `name` unless it is a RigidTransform; ValueError
+    if it holds NaN/inf."""
     if X_WB is None:
         return None
     if not isinstance(X_WB, RigidTransform):

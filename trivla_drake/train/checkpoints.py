@@ -13,7 +13,6 @@ always complete; a killed run leaves at most a `.tmp-*` folder, which is ignored
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import re
@@ -25,7 +24,6 @@ import torch
 import yaml
 
 from trivla_drake.config_io import save_config
-from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.nn.checkpoint import save_checkpoint
 from trivla_drake.train.atomic_folder import atomic_folder
 from trivla_drake.train.config import TrainConfig
@@ -66,7 +64,7 @@ def write_checkpoint(
         save_checkpoint(model, str(tmp))
         torch.save(train_state, tmp / STATE_FILE)
         (tmp / STEP_FILE).write_text(json.dumps({"step": int(train_state["step"])}))
-        write_config_yaml(config, tmp / TRAIN_CONFIG_FILE)
+        save_config(config, tmp / TRAIN_CONFIG_FILE)
 
     return write_folder_atomically(target, fill)
 
@@ -106,7 +104,7 @@ def write_model_folder(target: str | os.PathLike, model: torch.nn.Module, *, wei
     def fill(tmp: Path) -> None:
         save_checkpoint(model, str(tmp), weights_dtype=weights_dtype)
         if job_config is not None:
-            write_config_yaml(job_config[1], tmp / job_config[0])
+            save_config(job_config[1], tmp / job_config[0])
 
     return write_folder_atomically(target, fill)
 
@@ -228,19 +226,6 @@ def load_train_state(directory: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(state, dict) or "step" not in state:
         raise ValueError(f"{path} is not a training state (no 'step')")
     return state
-
-
-def write_config_yaml(config, path: str | os.PathLike) -> None:
-    """Writes the config dataclass `config` as YAML (`config_io.save_config`, loadable with `--config`). Where Drake is not installed (a
-    training machine may lack it) PyYAML writes the same fields, which `load_train_config` and Drake read alike."""
-    try:
-        import pydrake.common.yaml  # noqa: F401 - only whether it is there
-    except ModuleNotFoundError:
-        schema = type(config)
-        atomic_write_text(path, f"# {schema.__module__}.{schema.__qualname__}\n"
-                                + yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-        return
-    save_config(config, path)
 
 
 def load_train_config(directory: str | os.PathLike) -> TrainConfig:

@@ -27,6 +27,13 @@ from trivla_drake.train.config import STAGES, TrainConfig
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads on shared cores
 
+# TrainConfig's fields that `train` has a flag for (the rest go in --set); a `--no-...` flag sets its field false.
+TRAIN_FLAGS = {"stage": "--stage", "out": "--out", "data": "--data", "init": "--init", "preset": "--preset",
+               "steps": "--steps", "seed": "--seed", "resume": "--resume", "threads": "--threads",
+               "progress": "--no-progress"}
+# The flags `export`, `soup` and `refit` share (add_out_arguments).
+JOB_FLAGS = {"out": "--out", "overwrite": "--overwrite"}
+
 
 def _user_errors():
     from trivla_drake.data.lerobot_format import NotADatasetError
@@ -36,11 +43,17 @@ def _user_errors():
 
 def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The TrainConfig the command line asks for: --config, then --set, then the direct flags."""
-    return with_flags(config_from_args(TrainConfig, args), {
-        "stage": args.stage, "data": args.data, "out": args.out, "init": args.init, "preset": args.preset,
-        "steps": args.steps, "seed": args.seed, "threads": args.threads, "resume": args.resume or None,
-        "progress": False if args.no_progress else None,
-    })
+    return with_flags(config_from_args(TrainConfig, args), _flag_values(args, TRAIN_FLAGS))
+
+
+def _flag_values(args: argparse.Namespace, flags: dict[str, str]) -> dict:
+    """{field: the value its flag gave} (None where it was not given; a given `--no-...` flag: False) for
+    `with_flags`."""
+    values = {}
+    for field, flag in flags.items():
+        value = getattr(args, flag.lstrip("-").replace("-", "_"))
+        values[field] = (not flag.startswith("--no-") if value else None) if isinstance(value, bool) else value
+    return values
 
 
 def _run_job(command: str, args: argparse.Namespace, make_config, run) -> int:
@@ -134,7 +147,7 @@ def add_out_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _job_flags(args: argparse.Namespace) -> dict:
-    return {"out": args.out, "overwrite": args.overwrite or None}
+    return _flag_values(args, JOB_FLAGS)
 
 
 def run_export(args: argparse.Namespace) -> int:

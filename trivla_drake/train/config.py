@@ -407,15 +407,11 @@ class TrainConfig:
                 raise ValueError(f"extra_data names {self.extra_data[i - 1]!r}, which is already "
                                  f"{'data' if folders.index(folder) == 0 else 'given'}: each folder once")
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able nested form (what train_config.yaml holds)."""
-        return dataclasses.asdict(self)
-
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
-        """Inverse of `to_dict`, also reading a flat training config of before the nested one (train_config.json:
-        its fields mapped by FLAT_FIELD_PATHS; REMOVED_FIELDS at their value ignored); ValueError naming an unknown
-        field."""
+        """The config of its nested mapping (`dataclasses.asdict`: what train_config.yaml holds), also reading a flat
+        training config of before the nested one (train_config.json: its fields mapped by FLAT_FIELD_PATHS;
+        REMOVED_FIELDS at their value ignored); ValueError naming an unknown field."""
         if not any(isinstance(value, dict) for value in data.values()) and set(data) & set(FLAT_FIELD_PATHS):
             data = nested_from_flat(without_removed_fields(data, REMOVED_FIELDS, "training config"))
         return config_from_mapping(cls, data)

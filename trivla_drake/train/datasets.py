@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from trivla_drake.data.lerobot_format import EPISODE_TASK_KEY, with_removed_columns
+from trivla_drake.data.lerobot_format import with_removed_columns
 from trivla_drake.data.lerobot_reader import LeRobotReader
 from trivla_drake.data.samples import TrainingSamples
 from trivla_drake.nn.config import TriVLAConfig
@@ -51,12 +51,6 @@ def episode_content_fingerprint(reader: LeRobotReader, episode: int) -> str:
     recorded checksums): the name of what is cached from an episode, so a replaced file is never read stale."""
     digests = json.dumps(reader.episode_digests(episode), sort_keys=True).encode()
     return hashlib.sha256(episode_fingerprint(reader, episode).encode() + digests).hexdigest()[:16]
-
-
-def episode_task(reader: LeRobotReader, episode: int) -> str:
-    """The task an episode demonstrates: the suite task name where the dataset records it (one task has
-    many instruction phrasings), else LeRobot's task, the instruction."""
-    return str(reader.episodes[episode].get(EPISODE_TASK_KEY) or reader.task_of(episode))
 
 
 def _feature_names(reader: LeRobotReader, key: str) -> tuple[int, list[str] | None]:

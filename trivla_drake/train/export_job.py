@@ -82,12 +82,13 @@ def run_soup(config: SoupConfig) -> Path:
                             drop_unused_llm_layers=config.drop_unused_llm_layers, job_config=(SOUP_CONFIG_FILE, config))
 
 
-def check_out_folder(config) -> None:
-    """ValueError unless `config.out` may be replaced: missing, empty, an earlier model export, or `overwrite`."""
+def check_out_folder(config, *, flag: str = "--out", overwrite_flag: str = "--overwrite") -> None:
+    """ValueError (naming `flag`, and `overwrite_flag` as the way out) unless `config.out` may be replaced: missing,
+    empty, an earlier model export, or `overwrite`."""
     from trivla_drake.train.atomic_folder import check_replaceable_folder
 
-    check_replaceable_folder(config.out, flag="--out", holds_earlier_output=holds_model_export, what=MODEL_FOLDER,
-                             overwrite=config.overwrite)
+    check_replaceable_folder(config.out, flag=flag, holds_earlier_output=holds_model_export, what=MODEL_FOLDER,
+                             overwrite=config.overwrite, overwrite_flag=overwrite_flag)
 
 
 def holds_model_export(folder) -> bool:

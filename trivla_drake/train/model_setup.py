@@ -138,14 +138,15 @@ def _dense_classes(config: TrainConfig) -> int:
 
 
 def fresh_model_config(config: TrainConfig) -> TriVLAConfig:
-    """The `preset` model a run without --init or resume builds, with the run's options. A vlm run
+    """The `preset` model a run without --init or resume builds (with the tcp features, as every preset), with the
+    run's options. A vlm run
     keeps every LLM layer (a preset may build only those up to the read-out, as `paper` does):
     its answers are read from the LLM's last layer, not from Q_vl."""
     cfg = make_config(config.preset, init_seed=config.seed,
                       use_system2=config.use_system2, use_system3=config.use_system3)
     vision_language = cfg.vision_language
     return dataclasses.replace(
-        cfg, policy=dataclasses.replace(cfg.policy, tcp_features=TCP_FEATURES,
+        cfg, policy=dataclasses.replace(cfg.policy,
                                         vl_position_embedding=config.policy.vl_position_embedding and config.use_system2,
                                         instruction_grounding=config.policy.grounding.weight > 0,
                                         subgoal_offset=config.policy.subgoal_offset,

@@ -4,7 +4,7 @@ sub-goal's error on unseen rendered scenes and on the dataset's frames before an
 as models/trivla_cpu) and a JSON report.
 
 Killed and run again, the job starts training at once: the rendered scenes (grounding_scenes/, keyed by their settings)
-and System 2's Q_vl of every set (grounding_q_vl/, keyed by the checkpoint's files and the set) are kept in the cache
+and System 2's Q_vl of every set (grounding_q_vl/, keyed by the checkpoint's `checkpoint_digest` and the set) are kept in the cache
 folder (train/config.default_cache_dir()). The output folder is written whole or not at all (the export's writer).
 
 No `from __future__ import annotations` here: `RefitConfig` is loaded with Drake's `yaml_load_typed`, which reads the
@@ -96,11 +96,13 @@ def report_path(config: RefitConfig) -> str:
 
 
 def files_digest(folder: Path, pattern: str) -> str:
-    """sha256 of the names and bytes of `folder`'s files matching `pattern`."""
+    """sha256 of the names and sha256s of `folder`'s files (not folders) matching `pattern`."""
+    from trivla_drake.data.checksums import file_sha256
+
     digest = hashlib.sha256()
-    for path in sorted(Path(folder).glob(pattern)):
+    for path in sorted(p for p in Path(folder).glob(pattern) if p.is_file()):
         digest.update(path.name.encode())
-        digest.update(path.read_bytes())
+        digest.update(file_sha256(path).encode())
     return digest.hexdigest()
 
 
@@ -154,14 +156,12 @@ def run_refit(config: RefitConfig, *, progress: bool = True) -> dict:
     from trivla_drake.data.durable import atomic_write_text
     from trivla_drake.data.lerobot_reader import LeRobotReader
     from trivla_drake.nn import load_checkpoint
-    from trivla_drake.train.atomic_folder import check_replaceable_folder
+    from trivla_drake.nn.checkpoint import checkpoint_digest
     from trivla_drake.train.checkpoints import write_model_folder
-    from trivla_drake.train.export_job import REFIT_CONFIG_FILE, holds_model_export
+    from trivla_drake.train.export_job import REFIT_CONFIG_FILE, check_out_folder
 
     check_refit_config(config)
-    check_replaceable_folder(config.out, flag="out", holds_earlier_output=holds_model_export,
-                             what="model (config.json and model.safetensors)", overwrite=config.overwrite,
-                             overwrite_flag="overwrite")
+    check_out_folder(config, flag="out", overwrite_flag="overwrite")
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)
     try:
@@ -169,7 +169,7 @@ def run_refit(config: RefitConfig, *, progress: bool = True) -> dict:
         if model.policy.grounding is None:
             raise ValueError(f"refit: checkpoint {config.checkpoint} has no instruction grounding to re-fit")
         started = time.time()
-        digest = files_digest(Path(config.checkpoint), "*") if config.q_vl_cache else None
+        digest = checkpoint_digest(config.checkpoint) if config.q_vl_cache else None
         scenes = rendered_samples(model, config.scenes, TRAIN_SCENES_SEED, digest, progress=progress)
         tests = rendered_samples(model, config.test_scenes, TEST_SCENES_SEED, digest, progress=progress)
         scenes_s = time.time() - started

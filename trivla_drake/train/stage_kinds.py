@@ -5,13 +5,12 @@ complete, and a `describe` that prints the equivalent `trivla-drake ...` command
 from __future__ import annotations
 
 import dataclasses
-import json
-import shlex
 from pathlib import Path
-from typing import Any
 
+from trivla_drake.config_io import describe_command
 from trivla_drake.recipe import register_stage_kind
-from trivla_drake.train.config import TrainConfig, differing_fields
+from trivla_drake.train.cli_commands import JOB_FLAGS, TRAIN_FLAGS
+from trivla_drake.train.config import TrainConfig, check_resume_compatible
 from trivla_drake.train.export_job import (
     EXPORT_CONFIG_FILE,
     REFIT_CONFIG_FILE,
@@ -22,10 +21,6 @@ from trivla_drake.train.export_job import (
 )
 from trivla_drake.train.refit_job import RefitConfig
 
-# TrainConfig's fields that `train` has a flag for (the rest go in --set).
-TRAIN_FLAGS = ("stage", "data", "out", "init", "preset", "steps", "seed", "threads")
-
-
 def run_train_stage(config: TrainConfig, workdir: str) -> None:
     """Trains `config`'s run, resuming it where a killed run left checkpoints in its out folder."""
     from trivla_drake.train import checkpoints as ckpt
@@ -35,44 +30,36 @@ def run_train_stage(config: TrainConfig, workdir: str) -> None:
 
 
 def train_stage_done(config: TrainConfig, workdir: str) -> bool:
-    """Whether OUT/final holds an intact checkpoint of the run's last step."""
+    """Whether OUT/final (written whole or not at all) is the last step of a run that `config` may resume: its step is
+    the config's steps and its train_config.yaml differs from `config` only where a resumed run may differ. Reads
+    two small files: no weights, no optimizer state."""
+    from trivla_drake.nn.checkpoint import CONFIG_FILE, WEIGHTS_FILE
     from trivla_drake.train import checkpoints as ckpt
 
     final = Path(config.out) / ckpt.FINAL_DIR
-    if not final.is_dir() or ckpt.checkpoint_problem(final) is not None:
+    if not all((final / name).is_file() for name in (CONFIG_FILE, WEIGHTS_FILE, ckpt.STATE_FILE)):
         return False
-    steps = config.steps if config.steps is not None else config.resolved().steps
-    return ckpt.read_step(final) == steps
+    try:
+        saved = ckpt.load_train_config(final)
+        current = config.resolved()
+        if current.preset is None:  # as the trainer resumes: the run's preset
+            current = dataclasses.replace(current, preset=saved.preset)
+        check_resume_compatible(saved, current)
+        return ckpt.read_step(final) == current.steps
+    except ValueError:
+        return False
 
 
 def describe_train(config: TrainConfig) -> str:
     """The `trivla-drake train` command line that runs `config`."""
-    words = ["trivla-drake", "train"]
-    for name in TRAIN_FLAGS:
-        value = getattr(config, name)
-        if value is not None and (name in ("stage", "out") or value != getattr(TrainConfig(), name)):
-            words += [f"--{name}", str(value)]
-    words += ["--resume"] * config.resume + ["--no-progress"] * (not config.progress)
-    return _joined(words, config, TrainConfig(), skip={*TRAIN_FLAGS, "resume", "progress"})
+    return describe_command("train", config, TRAIN_FLAGS, always=("stage", "out"))
 
 
-def describe_job(command: str, positional: list[str], flags: dict[str, Any], config, skip: set[str]) -> str:
-    """The `trivla-drake COMMAND` line of an export/soup/refit config: positional arguments, --out, the given
-    flags, --set for the other fields that differ from their defaults."""
-    words = ["trivla-drake", command, *positional, "--out", config.out]
-    for flag, value in flags.items():
-        if value:
-            words += [flag] if value is True else [flag, str(value)]
-    words += ["--overwrite"] * config.overwrite
-    return _joined(words, config, type(config)(), skip={*skip, "out", "overwrite"})
-
-
-def _joined(words: list[str], config, defaults, *, skip: set[str]) -> str:
-    for dotted, value, _ in differing_fields(config, defaults):
-        if dotted not in skip:
-            text = value if isinstance(value, str) else json.dumps(value)  # JSON is YAML, as --set reads it
-            words += ["--set", f"{dotted}={text}"]
-    return " ".join(shlex.quote(word) for word in words)
+def describe_job(command: str, positional: list[str], flags: dict[str, str], config, skip: set[str]) -> str:
+    """The `trivla-drake COMMAND` line of an export/soup/refit config: positional arguments (the fields `skip`),
+    --out, the `flags` (field -> flag) and --overwrite where set, --set for the other fields that differ from their
+    defaults."""
+    return describe_command(command, config, {**flags, **JOB_FLAGS}, leading=positional, skip=skip, always=("out",))
 
 
 def _run_export(config: ExportConfig, workdir: str) -> None:
@@ -102,5 +89,5 @@ register_stage_kind("soup", SoupConfig, run=_run_soup,
                     describe=lambda config: describe_job("soup", list(config.checkpoints), {}, config, {"checkpoints"}))
 register_stage_kind("refit", RefitConfig, run=_run_refit,
                     is_done=lambda config, workdir: holds_export_of(config.out, config, REFIT_CONFIG_FILE),
-                    describe=lambda config: describe_job("refit", [config.checkpoint], {"--data": config.data},
-                                                         config, {"checkpoint", "data"}))
+                    describe=lambda config: describe_job("refit", [config.checkpoint], {"data": "--data"},
+                                                         config, {"checkpoint"}))

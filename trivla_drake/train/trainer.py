@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from trivla_drake.config_io import save_config
 from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train import checkpoints as ckpt
@@ -212,7 +213,7 @@ def _train(config: TrainConfig, env: DistEnv, step_callback: StepCallback | None
     log_path = out / "log.jsonl"
     if env.is_main:
         out.mkdir(parents=True, exist_ok=True)
-        ckpt.write_config_yaml(config, out / ckpt.TRAIN_CONFIG_FILE)  # the run's full config (as resumed last)
+        save_config(config, out / ckpt.TRAIN_CONFIG_FILE)  # the run's full config (as resumed last)
         _truncate_log(log_path, start_step)  # lines of steps after the resumed checkpoint are redone
     bar = tqdm(total=config.steps, initial=start_step, desc=f"train {config.stage}", unit="step",
                disable=not (config.progress and env.is_main), dynamic_ncols=True)
