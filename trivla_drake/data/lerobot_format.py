@@ -6,12 +6,14 @@ reads it back):
 
     meta/info.json                                   fps, features, path templates, totals
     meta/tasks.parquet                               task (instruction text, the index) -> task_index
-    meta/stats.json                                  per-feature min / max / mean / std / count
+    meta/stats.json                                  per-feature min / max / mean / std / count and the
+                                                     quantiles q01 / q10 / q50 / q90 / q99 (lerobot_stats.py)
     meta/episodes/chunk-XXX/file-XXX.parquet         one row per episode: length, tasks, file
                                                      indices, frame range, per-episode stats
     data/chunk-XXX/file-XXX.parquet                  one row per frame: timestamp, frame_index,
                                                      episode_index, index, task_index, features
-    videos/<camera key>/chunk-XXX/file-XXX.mp4       one video per camera and episode
+    videos/<camera key>/chunk-XXX/file-XXX.mp4       one video per camera and episode, all in one codec
+                                                     (info.json's video.codec; data/video.py)
 
     meta/checksums.json                              sha256 of every data and video file (data/checksums.py;
                                                      not LeRobot's, which ignores it)
@@ -19,6 +21,7 @@ reads it back):
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pyarrow as pa
@@ -108,8 +111,16 @@ def read_episode_rows(root: Path) -> list[dict]:
     return rows
 
 
+def info_fps(fps: float) -> int:
+    """`fps` as info.json stores it (lerobot v3 reads an integer); ValueError for a rate that is no whole number."""
+    if not float(fps).is_integer() or fps <= 0:
+        raise ValueError(f"fps must be a positive whole number of frames per second (LeRobot v3 stores an integer "
+                         f"fps), got {fps}")
+    return int(fps)
+
+
 def video_feature(height: int, width: int, fps: float, codec: str = "mpeg4") -> dict:
-    """The info.json entry of a camera stored as mp4."""
+    """The info.json entry of a camera stored as mp4 (`LeRobotWriter` sets codec and pix_fmt from the files)."""
     return {
         "dtype": "video",
         "shape": [height, width, 3],
@@ -120,11 +131,25 @@ def video_feature(height: int, width: int, fps: float, codec: str = "mpeg4") -> 
             "video.codec": codec,
             "video.pix_fmt": "yuv420p",
             "video.is_depth_map": False,
-            "video.fps": fps,
+            "video.fps": info_fps(fps),
             "video.channels": 3,
             "has_audio": False,
         },
     }
+
+
+def dataset_video_codec(root: str | Path) -> str | None:
+    """The codec of the videos of the dataset at `root` (info.json's video.codec; a dataset written before the
+    codec was a choice has 'mpeg4'); None where `root` holds no committed episode with videos (nothing fixes it)."""
+    path = Path(root) / INFO_PATH
+    try:
+        info = json.loads(path.read_text())
+        videos = [f for f in info["features"].values() if f.get("dtype") == "video"]
+        if not videos or not info.get("total_episodes"):
+            return None
+        return videos[0].get("info", {}).get("video.codec", "mpeg4")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None  # no dataset there (or not one this reads): the writer says what is wrong with it
 
 
 def vector_feature(names: list[str], dtype: str = "float32") -> dict:

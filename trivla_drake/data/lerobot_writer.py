@@ -1,4 +1,4 @@
-"""Appending episodes to a LeRobot v3.0 dataset (the layout: lerobot_format.py), with pyarrow and OpenCV only.
+"""Appending episodes to a LeRobot v3.0 dataset (the layout: lerobot_format.py), with pyarrow, OpenCV and PyAV.
 
 Atomicity: an episode's videos, data and (new) task rows are written first, each through a temporary
 file renamed into place, then meta/checksums.json with their checksums added; its `meta/episodes` file
@@ -6,6 +6,11 @@ is written last and is the commit. A process killed
 at any moment leaves every committed episode readable; `LeRobotWriter` reopens the folder, ignores
 anything of an uncommitted episode (it is overwritten) and rebuilds info.json and stats.json from
 the committed episodes' metadata.
+
+One dataset, one schema: its videos are all in one codec (info.json's video.codec, set from the first committed
+episode's files, or by `video_codec`), and its statistics carry the quantiles (lerobot_stats.py) unless its first
+episode was written before they were recorded (then none of its episodes records them, so every meta/episodes
+file has the same columns, as lerobot's readers need).
 """
 
 from __future__ import annotations
@@ -37,9 +42,18 @@ from trivla_drake.data.lerobot_format import (
     VIDEO_PATH,
     NotADatasetError,
     episode_files,
+    info_fps,
     read_episode_rows,
 )
-from trivla_drake.data.lerobot_stats import aggregate_stats, array_stats, episode_stats, image_stats
+from trivla_drake.data.lerobot_stats import (
+    QUANTILES,
+    aggregate_stats,
+    array_stats,
+    episode_stats,
+    has_quantiles,
+    image_stats,
+    without_quantiles,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -91,11 +105,24 @@ def _typed_row_table(row: dict) -> pa.Table:
     return table
 
 
-class LeRobotWriter:
-    """Appends episodes to a LeRobot v3.0 dataset, one committed episode at a time (resumable)."""
+def _records_quantiles(row: dict) -> bool:
+    """Whether an episode's meta/episodes row has quantile statistics (rows written before them have none)."""
+    return any(column.startswith("stats/") and column.rsplit("/", 1)[-1] in QUANTILES for column in row)
 
-    def __init__(self, root: str | os.PathLike, *, fps: float, features: dict[str, dict], robot_type: str = "panda"):
+
+class LeRobotWriter:
+    """Appends episodes to a LeRobot v3.0 dataset, one committed episode at a time (resumable).
+
+    `video_codec` (one of data/video.py's VIDEO_CODECS): the codec of the videos this writer encodes from frames,
+    and the only one it accepts in files; ValueError naming it where the dataset holds videos of another. None: the
+    dataset's codec where it has episodes, else the features' video.codec ('mpeg4' by default) until the first
+    episode's files fix it.
+    """
+
+    def __init__(self, root: str | os.PathLike, *, fps: float, features: dict[str, dict], robot_type: str = "panda",
+                 video_codec: str | None = None):
         self.root = Path(root)
+        info_fps(fps)  # a clear error for a rate lerobot cannot record
         self.fps = float(fps)
         self.robot_type = robot_type
         self.features = {**{k: dict(v) for k, v in features.items()}, **DEFAULT_FEATURES}
@@ -104,6 +131,16 @@ class LeRobotWriter:
                 raise ValueError(f"feature name {name!r} must not contain '/'")
         self.video_keys = [k for k, v in self.features.items() if v["dtype"] == "video"]
         self.vector_keys = [k for k, v in features.items() if v["dtype"] != "video"]
+        for key in self.video_keys:
+            self.features[key]["info"] = dict(self.features[key].get("info") or {})
+        if video_codec is not None:
+            from trivla_drake.data.video import video_encoder
+
+            video_encoder(video_codec)  # ValueError naming video_codec for an unknown or unavailable codec
+        self._codec_fixed = video_codec is not None
+        self.video_codec = video_codec or self._declared_codec()
+        self.records_quantiles = True
+        self._set_video_info({"codec": self.video_codec})
         if self.root.exists() and not self.root.is_dir():
             raise NotADatasetError(f"{self.root} is a file, not a dataset folder: choose another --out")
         if (self.root / INFO_PATH).is_file():
@@ -120,6 +157,18 @@ class LeRobotWriter:
             self._checksums: dict[str, str] = {}
             write_checksums(self.root, self._checksums)
             self._write_info()
+
+    def _declared_codec(self) -> str:
+        """The codec the features' info blocks name ('mpeg4' where they name none)."""
+        codecs = {self.features[k]["info"].get("video.codec", "mpeg4") for k in self.video_keys}
+        return codecs.pop() if len(codecs) == 1 else "mpeg4"
+
+    def _set_video_info(self, probe: dict) -> None:
+        """Records a video's codec (and pix_fmt, where known) in every camera's info block: one codec per dataset."""
+        for key in self.video_keys:
+            self.features[key]["info"]["video.codec"] = probe["codec"]
+            if "pix_fmt" in probe:
+                self.features[key]["info"]["video.pix_fmt"] = probe["pix_fmt"]
 
     def _open_existing(self) -> None:
         path = self.root / INFO_PATH
@@ -141,6 +190,8 @@ class LeRobotWriter:
         for i, row in enumerate(self._episodes):
             if row["episode_index"] != i:
                 raise NotADatasetError(f"{self.root}: committed episodes are not numbered 0..N-1 (at {i})")
+        if self._episodes:
+            self._adopt_dataset_schema(features)
         tasks_path = self.root / TASKS_PATH
         self._tasks = pq.read_table(tasks_path).column("task").to_pylist() if tasks_path.is_file() else []
         for row in self._episodes:  # tasks.parquet is written before each commit; this is a safety net
@@ -157,6 +208,26 @@ class LeRobotWriter:
         self._checksums = {f: recorded[f] for f in committed if f in recorded}
         write_checksums(self.root, self._checksums)
         self._write_info()
+
+    def _adopt_dataset_schema(self, features: dict[str, dict]) -> None:
+        """Takes the committed episodes' video info (codec, pix_fmt: what their files are) and statistics schema
+        from the dataset's info.json `features`; ValueError naming video_codec where this writer was asked for
+        another codec."""
+        if self.video_keys:
+            old = features[self.video_keys[0]].get("info") or {}
+            codec = old.get("video.codec", "mpeg4")  # every video before the choice was mpeg4
+            if self._codec_fixed and codec != self.video_codec:
+                raise ValueError(
+                    f"video_codec {self.video_codec!r}: {self.root} holds {len(self._episodes)} episodes of "
+                    f"{codec!r} video (meta/info.json); one dataset holds one codec: resume it with video_codec "
+                    f"{codec!r}, or write to another --out")
+            self.video_codec, self._codec_fixed = codec, True
+            self._set_video_info({"codec": codec, "pix_fmt": old.get("video.pix_fmt", "yuv420p")})
+        self.records_quantiles = _records_quantiles(self._episodes[0])
+        if not self.records_quantiles:
+            _log.warning("%s was written before quantile statistics were recorded: its new episodes record none "
+                         "either (one schema per dataset), and meta/stats.json has min/max/mean/std/count only",
+                         self.root)
 
     def _files_of(self, row: dict) -> list[str]:
         return episode_files(row, DATA_PATH, VIDEO_PATH, self.video_keys)
@@ -186,10 +257,12 @@ class LeRobotWriter:
 
         `frames`: feature -> (T, D) array for every non-video feature. `videos`: camera key -> an
         encoded mp4 file (moved into place) or (T, H, W, 3) uint8 frames (encoded here).
-        `video_stats`: camera key -> `image_stats` (computed from the frames when they are given).
+        Files must be in the dataset's codec (`video_codec`) and hold the episode's frames at the camera's size.
+        `video_stats`: camera key -> `image_stats` (computed from the frames when they are given; with the
+        quantiles unless the dataset records none, `records_quantiles`).
         `extra`: more JSON-able columns for the episode's metadata row (names like 'trivla/seed').
         """
-        from trivla_drake.data.video import write_video
+        from trivla_drake.data.video import PIX_FMT, write_video
 
         videos = dict(videos or {})
         video_stats = dict(video_stats or {})
@@ -204,6 +277,14 @@ class LeRobotWriter:
             array = np.asarray(frames[key])
             if array.shape != (length,) + shape:
                 raise ValueError(f"feature {key!r} has shape {array.shape}, expected {(length,) + shape}")
+        probe = self._check_videos(videos, length)
+        codec = probe["codec"] if probe else self.video_codec
+        for key in list(video_stats):
+            if not self.records_quantiles:
+                video_stats[key] = without_quantiles(video_stats[key])
+            elif not has_quantiles(video_stats[key]):
+                raise ValueError(f"video_stats[{key!r}] has no quantiles {list(QUANTILES)}: compute it with "
+                                 "lerobot_stats.image_stats")
         index = self.num_episodes
         where = _chunk_file(index)
         start = self.num_frames
@@ -224,11 +305,9 @@ class LeRobotWriter:
         for key in self.video_keys:
             target = self.root / VIDEO_PATH.format(video_key=key, **where)
             source = videos[key]
-            if isinstance(source, np.ndarray):
-                if len(source) != length:
-                    raise ValueError(f"video {key!r} has {len(source)} frames, the episode {length}")
-                video_stats.setdefault(key, image_stats(source))
-                write_video(target, source, self.fps)
+            if isinstance(source, np.ndarray):  # its length was checked (_check_videos)
+                video_stats.setdefault(key, image_stats(source, quantiles=self.records_quantiles))
+                write_video(target, source, self.fps, codec)
             else:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.move(str(source), str(target))
@@ -254,7 +333,8 @@ class LeRobotWriter:
         columns["task_index"] = pa.array(np.full(length, task_index, dtype=np.int64))
         _atomic_write_table(self.root / DATA_PATH.format(**where), pa.table(columns))
 
-        stats = {key: array_stats(np.asarray(frames[key])) for key in self.vector_keys}
+        stats = {key: array_stats(np.asarray(frames[key]), quantiles=self.records_quantiles)
+                 for key in self.vector_keys}
         stats.update({key: video_stats[key] for key in self.video_keys if key in video_stats})
         for name, values in (
             ("timestamp", columns["timestamp"].to_numpy()[:, None]),
@@ -263,7 +343,7 @@ class LeRobotWriter:
             ("index", np.arange(start, start + length)[:, None]),
             ("task_index", np.full((length, 1), task_index)),
         ):
-            stats[name] = array_stats(values)
+            stats[name] = array_stats(values, quantiles=self.records_quantiles)
         for feature, metrics in stats.items():
             for metric, value in metrics.items():
                 row[f"stats/{feature}/{metric}"] = value
@@ -277,8 +357,40 @@ class LeRobotWriter:
         # The commit: from here on the episode is part of the dataset.
         _atomic_write_table(self.root / EPISODES_PATH.format(**where), _typed_row_table(row))
         self._episodes.append(row)
+        if self.video_keys and not self._codec_fixed:  # the first episode's files fix the dataset's codec
+            self.video_codec, self._codec_fixed = codec, True
+            self._set_video_info(probe or {"codec": codec, "pix_fmt": PIX_FMT})
         self._write_info()
         return index
+
+    def _check_videos(self, videos: dict, length: int) -> dict | None:
+        """Checks an episode's videos before anything is written: frames give `length` frames; files are in the
+        dataset's codec (or, before its first episode, all in one) at the camera's size, with `length` frames.
+        Returns the files' probe (data/video.py's `probe_video`; None: no files)."""
+        from trivla_drake.data.video import probe_video
+
+        first = None
+        for key in self.video_keys:
+            source = videos[key]
+            if isinstance(source, np.ndarray):
+                if len(source) != length:
+                    raise ValueError(f"video {key!r} has {len(source)} frames, the episode {length}")
+                continue
+            probe = probe_video(source)
+            expected = first["codec"] if first else self.video_codec if self._codec_fixed else probe["codec"]
+            if probe["codec"] != expected:
+                held = f"{self.root} holds {expected!r} video (meta/info.json)" if self._codec_fixed else \
+                    f"its other camera's is {expected!r}"
+                raise ValueError(f"video_codec: {key!r} video {source} is {probe['codec']!r} but {held}; one dataset "
+                                 f"holds one codec: write it with video_codec {expected!r}, or to another --out")
+            height, width = self.features[key]["shape"][:2]
+            if (probe["height"], probe["width"]) != (height, width):
+                raise ValueError(f"video {key!r} ({source}) is {probe['width']}x{probe['height']}, the camera "
+                                 f"{width}x{height}")
+            if probe["frames"] and probe["frames"] != length:
+                raise ValueError(f"video {key!r} ({source}) has {probe['frames']} frames, the episode {length}")
+            first = first or probe
+        return first
 
     def _write_info(self) -> None:
         n = self.num_episodes
@@ -291,7 +403,7 @@ class LeRobotWriter:
             "chunks_size": CHUNKS_SIZE,
             "data_files_size_in_mb": 100,
             "video_files_size_in_mb": 500,
-            "fps": self.fps,
+            "fps": info_fps(self.fps),
             "splits": {"train": f"0:{n}"},
             "data_path": DATA_PATH,
             "video_path": VIDEO_PATH if self.video_keys else None,

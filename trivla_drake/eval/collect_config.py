@@ -26,10 +26,17 @@ class CollectConfig:
     tasks: list[str] = dc.field(default_factory=lambda: list(TASK_NAMES))
     # Base seed.
     seed: int = 0
-    # Worker processes.
+    # Local worker processes (1: in this process; more: a local Ray with that many, started and stopped by the
+    # command). Ignored with ray_address.
     workers: int = 1
+    # An existing Ray cluster to run on (e.g. 'ray://head:10001' or 'auto'; None: $RAY_ADDRESS if set, else
+    # local). The results are the same as a serial run's, whatever the cluster's size.
+    ray_address: Optional[str] = None
     # Camera image size [px] (square).
     image_size: int = 224
+    # Codec of the camera videos (data/video.py): "mpeg4" (MPEG-4 Part 2, OpenCV's), "h264" (libx264) or "av1"
+    # (libsvtav1, lerobot's default), yuv420p mp4. One dataset holds one codec: a resumed one must keep its own.
+    video_codec: str = "mpeg4"
     # A registered perturbation of the applied actions (eval/perturbations.py; name "": clean demonstrations), e.g.
     # DART's bursts {name: dart, settings: {scale: 1.0}} (scale: a multiple of the default burst rate, 1 = a burst
     # about every 17 steps). The recorded actions stay the oracle's; recorded per episode, so a resumed run may
@@ -51,12 +58,26 @@ class CollectConfig:
             raise ValueError(f"image_size must be an even number >= 16, got {self.image_size}")
         if not self.tasks:
             raise ValueError("--tasks is empty")
+        self.check_video_codec()
         self.disturbance()  # validates the perturbation
         if (isinstance(self.prelude_tasks, bool) or not isinstance(self.prelude_tasks, int)
                 or not 0 <= self.prelude_tasks <= MAX_PRELUDE_TASKS):
             raise ValueError(f"prelude_tasks must be an integer from 0 to {MAX_PRELUDE_TASKS} (a chain has "
                              f"{MAX_PRELUDE_TASKS + 1} tasks), got {self.prelude_tasks!r}")
         check_run_settings(self.tasks, self.seed)
+
+    def check_video_codec(self) -> None:
+        """ValueError naming video_codec: a codec not in VIDEO_CODECS, one this PyAV build cannot encode, or
+        another than the videos of the dataset at `out` already are in."""
+        from trivla_drake.data.lerobot_format import dataset_video_codec
+        from trivla_drake.data.video import video_encoder
+
+        video_encoder(self.video_codec, "video_codec")
+        held = dataset_video_codec(self.out)
+        if held is not None and held != self.video_codec:
+            raise ValueError(f"video_codec {self.video_codec!r}: {self.out} holds {held!r} video; one dataset holds "
+                             f"one codec: resume it with video_codec {held!r} (--set video_codec={held}), or "
+                             "choose another --out")
 
     def action_noise(self) -> float:
         """The DART scale of the perturbation (0: none or another kind): each episode's ACTION_NOISE_KEY column."""
