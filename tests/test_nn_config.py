@@ -23,7 +23,7 @@ def test_presets_build_and_default_to_paper_shapes():
 
 
 def test_unknown_preset_lists_valid_ones():
-    with pytest.raises(ValueError, match="cpu, paper, tiny"):
+    with pytest.raises(ValueError, match="cpu, cpu_minilm, paper, tiny"):
         make_config("huge")
 
 

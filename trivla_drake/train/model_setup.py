@@ -81,7 +81,7 @@ def apply_ablations(
     components = {k: v for k, v in model.component_configs().items()
                   if (k == "vision_language" and use_system2) or (k == "dynamics" and use_system3)}
     new = TriVLA(new_config, normalization=model.normalization, component_configs=components,
-                 tokenizers=tokenizers, load_pretrained=False)
+                 tokenizers=tokenizers, load_pretrained=False, text_encoder=model.text_encoder)
     _transfer_weights(model, new)
     if reads_gripper and not cfg.policy.grounding_reads_gripper:
         new.policy.grounding.start_held_from_open()
