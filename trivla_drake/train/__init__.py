@@ -9,7 +9,8 @@
 run starts from, `stage_data.py` each stage's data, `optimization.py` AdamW and the schedule, `rng_state.py` the
 random states a checkpoint keeps, `trainer.py` the loop, `checkpoints.py` atomic training checkpoints,
 `sampler.py` the resumable distributed batch sampler, `datasets.py` clips and policy samples, `dataset_union.py`
-several datasets in one policy run (`extra_data`), `features.py` the System 2/3 feature cache, `vqa.py`
+several datasets in one policy run (`extra_data`), `features.py` the System 2/3 feature cache (`throughput.py` how
+fast it and the policy stage run, for `bench --throughput`), `vqa.py`
 simulator-generated visual questions, `export_job.py` / `model_soup.py` / `refit_job.py` the model-folder jobs,
 `stage_kinds.py` the jobs as recipe stages, `cli_commands.py` the `train`, `export`, `soup`, `refit` subcommands.
 """

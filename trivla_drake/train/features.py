@@ -25,23 +25,33 @@ folder with that key holds (a lender) is not computed in full:
 The lending folders are listed in cache_info.json and the summary: delete them and the episodes are
 computed in full. A folder lends once a policy stage has run on it with this code, which writes its
 `dynamics_key`.
+
+Speed (train/throughput.py measures it): System 3 does its instruction's work once per batch, not once per frame
+(nn/shared_instruction.py; the shards stay bit-identical), and on the CPU the missing episodes are computed by
+`workers` threads at once (default: torch's thread count, i.e. TrainConfig.threads), each with its own copy of the
+model and one torch thread: the cores are used better than by one episode at a time on several torch threads (the
+`cpu` preset's small matrices split poorly, and threads that wait on each other stall on a busy machine).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
 import os
+import queue
 import uuid
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
 
 from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.data.lerobot_reader import LeRobotReader
+from trivla_drake.nn.shared_instruction import shared_instruction
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.datasets import episode_content_fingerprint, episode_fingerprint, resize_frames
@@ -164,19 +174,21 @@ def compute_episode_features(
     # Seeded from the metadata alone, as before the cache was keyed by content: "random" noise draws the same.
     generator = torch.Generator().manual_seed(_episode_seed(config.features.seed, episode_fingerprint(reader, episode)))
     parts: dict[str, list[torch.Tensor]] = {}
-    for start in range(0, len(frames_index), config.features.batch_size):
-        s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.features.batch_size]))
-        w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.features.batch_size]))
-        texts = [instruction] * len(s)
-        if model.vision_language is not None:
-            q_vl, mask = model.encode_vision_language_batch(s, w, texts)
-            if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
-                raise RuntimeError("unexpected padding in System 2's tokens of one episode")
-            parts.setdefault("q_vl", []).append(q_vl.float().cpu())
-        if model.dynamics is not None and not lent:
-            f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
-            parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
-            parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
+    run_dynamics = model.dynamics is not None and not lent
+    with shared_instruction(model.dynamics if run_dynamics else None):  # one instruction per episode
+        for start in range(0, len(frames_index), config.features.batch_size):
+            s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.features.batch_size]))
+            w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.features.batch_size]))
+            texts = [instruction] * len(s)
+            if model.vision_language is not None:
+                q_vl, mask = model.encode_vision_language_batch(s, w, texts)
+                if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
+                    raise RuntimeError("unexpected padding in System 2's tokens of one episode")
+                parts.setdefault("q_vl", []).append(q_vl.float().cpu())
+            if run_dynamics:
+                f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
+                parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
+                parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
     out = {}
     for key, chunks in parts.items():
         full = torch.cat(chunks)
@@ -213,6 +225,64 @@ def _shard_is_valid(path: Path) -> bool:
         return False
 
 
+# A model is copied once per worker thread (`feature_workers`) only while it is smaller than this.
+MAX_WORKER_COPY_BYTES = 2 * 1024**3
+
+
+def _model_bytes(model: torch.nn.Module) -> int:
+    return sum(t.numel() * t.element_size() for t in [*model.parameters(), *model.buffers()])
+
+
+def feature_workers(model: TriVLA, workers: int | None) -> int:
+    """How many episodes the cache computes at once: `workers` (None: torch's thread count, i.e. the cores this
+    process was given, TrainConfig.threads), each on its own copy of the model with one torch thread; 1 on a GPU
+    or for a model over MAX_WORKER_COPY_BYTES, which then uses torch's threads within each episode."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"feature cache workers must be an integer >= 1; got {workers!r}")
+    if model.device.type != "cpu" or _model_bytes(model) > MAX_WORKER_COPY_BYTES:
+        return 1
+    return workers if workers is not None else max(1, torch.get_num_threads())
+
+
+def _compute_shards(model: TriVLA, reader: LeRobotReader, episodes: list[int], config: TrainConfig,
+                    copy_from: dict[int, Path], save: Callable[[int, dict[str, torch.Tensor]], None], workers: int,
+                    done: Callable[[], None]) -> None:
+    """Computes and `save`s the features of `episodes`, `workers` at a time (see `feature_workers`), calling
+    `done()` after each; the first error stops the rest and is raised."""
+    if workers <= 1 or len(episodes) <= 1:
+        for episode in episodes:
+            save(episode, compute_episode_features(model, reader, episode, config, copy_from.get(episode)))
+            done()
+        return
+    workers = min(workers, len(episodes))
+    replicas: queue.SimpleQueue = queue.SimpleQueue()
+    for _ in range(workers):
+        replicas.put(copy.deepcopy(model))
+
+    def one(episode: int) -> None:
+        torch.set_num_threads(1)  # this thread's own setting: the workers are the parallelism
+        replica = replicas.get()
+        try:
+            save(episode, compute_episode_features(replica, reader, episode, config, copy_from.get(episode)))
+        finally:
+            replicas.put(replica)
+
+    threads_before = torch.get_num_threads()
+    try:
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="feature-cache") as pool:
+            futures = [pool.submit(one, episode) for episode in episodes]
+            try:
+                for future in as_completed(futures):
+                    future.result()
+                    done()
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+    finally:
+        torch.set_num_threads(threads_before)  # a worker's setting also becomes new threads' default
+
+
 def ensure_feature_cache(
     model: TriVLA,
     reader: LeRobotReader,
@@ -221,10 +291,14 @@ def ensure_feature_cache(
     env: DistEnv,
     *,
     progress: bool = True,
+    workers: int | None = None,
 ) -> tuple[dict[int, Path], dict[str, Any]]:
-    """Computes the missing shards (split across ranks), waits for all ranks, and returns
-    episode -> shard path and a summary (folder, computed / reused shards, bytes per episode)."""
+    """Computes the missing shards (split across ranks; within a rank, `workers` episodes at once: `feature_workers`),
+    waits for all ranks, and returns episode -> shard path and a summary (folder, computed / reused shards, bytes per
+    episode)."""
     from tqdm import tqdm
+
+    workers = feature_workers(model, workers)
 
     if model.vision_language is None and model.dynamics is None:
         return {}, {"feature_cache": None}
@@ -275,11 +349,12 @@ def ensure_feature_cache(
     model.eval()
     bar = tqdm(total=len(mine), desc="caching System 2/3 features", unit="ep",
                disable=not (progress and env.is_main) or not mine)
+
+    def save(episode: int, tensors: dict[str, torch.Tensor]) -> None:
+        _save_shard(shards[episode], tensors, {"instruction": reader.task_of(episode), "key": key})
+
     try:
-        for episode in mine:
-            tensors = compute_episode_features(model, reader, episode, config, copy_from.get(episode))
-            _save_shard(shards[episode], tensors, {"instruction": reader.task_of(episode), "key": key})
-            bar.update(1)
+        _compute_shards(model, reader, mine, config, copy_from, save, workers, lambda: bar.update(1))
     finally:
         bar.close()
         model.train(was_training)
@@ -294,6 +369,7 @@ def ensure_feature_cache(
         "feature_shards_reused": len(episodes) - len(missing) - borrowed,
         "feature_shards_borrowed": borrowed,
         "feature_shards_dynamics_copied": len(copy_from),
+        "feature_cache_workers": workers,
         "feature_cache_bytes_per_episode": total_bytes / len(sample) if sample else None,
         "feature_cache_bytes_per_frame": total_bytes / cached_frames if sample else None,
     }
