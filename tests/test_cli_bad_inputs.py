@@ -133,9 +133,12 @@ def test_evaluate_draws_its_episodes_as_they_run_in_the_order_they_always_had(mo
     result = {"task": "lift_block", "success": True, "seed": 0, "instruction": "", "reason": "", "completed": 0,
               "subtasks": []}
     monkeypatch.setattr(evaluate, "_run_job", lambda config, job: ran.append(job) or dict(result, task=job[1]))
-    evaluate.evaluate(EvalConfig(tasks=["lift_block", "open_drawer"], episodes=2, chains=1), progress=False)
-    assert ran == [("episode", "lift_block", 0), ("episode", "open_drawer", 0), ("episode", "lift_block", 1),
-                   ("episode", "open_drawer", 1), ("chain", "chain", 0)]
+    evaluate.evaluate(EvalConfig(tasks=["lift_block", "open_drawer"], episodes=2, chains=1, seed=7), progress=False)
+    assert ran == [("episode", "lift_block", 0, 7), ("episode", "open_drawer", 0, 7), ("episode", "lift_block", 1, 7),
+                   ("episode", "open_drawer", 1, 7), ("chain", "chain", 0, 7)]
+    ran.clear()
+    evaluate.evaluate(EvalConfig(tasks=["lift_block"], episodes=1, seeds=[7, 9]), progress=False)
+    assert ran == [("episode", "lift_block", 0, 7), ("episode", "lift_block", 0, 9)]
 
     class Stop(Exception):
         pass
@@ -169,26 +172,6 @@ def test_collect_draws_its_attempts_as_they_run_in_the_order_they_always_had():
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert peak < 1e6  # the listed batch would be 300000 attempts
-
-
-def test_workers_get_a_few_jobs_ahead_and_results_come_in_order():
-    from concurrent.futures import Future
-
-    from trivla_drake.eval.evaluate import results_in_order
-
-    class Pool:  # runs each job at submission; records how many were submitted
-        submitted = 0
-
-        def submit(self, function, config, job):
-            Pool.submitted += 1
-            future = Future()
-            future.set_result(function(config, job))
-            return future
-
-    jobs = iter(range(1000))
-    results = results_in_order(Pool(), lambda config, job: (config, job), "c", jobs, ahead=3)
-    assert [next(results) for _ in range(5)] == [("c", i) for i in range(5)]
-    assert Pool.submitted == 8  # the 5 taken and 3 ahead, not all 1000
 
 
 # ------------------------------------------------------------------ demo, sim and bench flags
@@ -248,10 +231,15 @@ TRAIN = ["train", "--stage", "policy", "--data", "{tmp}/data", "--out", "{tmp}/r
 
 
 @pytest.mark.parametrize("argv, message", [
-    ([*TABLES, "--seeds", "1000,x"], "--seeds must be comma-separated integer base seeds, e.g. 1000,1001,1002; got "
-                                     "'1000,x'"),
-    ([*TABLES, "--seeds", "1000,,1001"], "--seeds must be comma-separated integer base seeds"),
-    ([*TABLES, "--seeds", ""], "--seeds must be comma-separated integer base seeds"),
+    ([*TABLES, "--seeds", "1000,x"], "--seeds must be base seeds as a range or a comma-separated list, e.g. "
+                                     "1000-1017 or 1000,1001,1002; got '1000,x'"),
+    ([*TABLES, "--seeds", "1000,,1001"], "--seeds must be base seeds as a range or a comma-separated list"),
+    ([*TABLES, "--seeds", ""], "--seeds must be base seeds as a range or a comma-separated list"),
+    ([*TABLES, "--seeds", "1005-1000"], "--seeds must be base seeds as a range or a comma-separated list"),
+    (["evaluate", "--seeds", "1000-1002,x"], "--seeds must be base seeds as a range or a comma-separated list"),
+    (["evaluate", "--seeds", "1000-1002", "--seed", "5"], "give --seed or --seeds, not both"),
+    (["evaluate", "--seeds", "1000-1002,1001"], "--seeds must be distinct base seeds"),
+    (["evaluate", "--seeds", "1000,4294967296"], "--seed must be an integer from 0 to 4294967295"),
     ([*TABLES, "--seeds", "1000,4294967296"], "--seeds must be an integer from 0 to 4294967295 (a 32-bit seed"),
     ([*TABLES, "--seeds=-1"], "--seeds must be an integer from 0 to 4294967295"),
     ([*TABLES, "--seeds", "1000,1001,1000"], "--seeds names [1000] more than once"),

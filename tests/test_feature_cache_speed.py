@@ -47,7 +47,9 @@ def test_shared_instruction_gives_bit_identical_system3_features(tiny, noise):
             with torch.inference_mode():
                 return model.encode_dynamics_batch(static, wrist, texts, generator=torch.Generator().manual_seed(7))
 
-        plain = run()
+        with torch.enable_grad():  # with gradients encode_dynamics_batch takes the plain path
+            plain = [f.detach() for f in model.encode_dynamics_batch(static, wrist, texts,
+                                                                     generator=torch.Generator().manual_seed(7))]
         attentions = [m for m in model.dynamics.unet.modules() if hasattr(m, "processor")]
         before = [m.processor for m in attentions]
         with shared_instruction(model.dynamics) as processors:
@@ -57,6 +59,29 @@ def test_shared_instruction_gives_bit_identical_system3_features(tiny, noise):
         assert [m.processor for m in attentions] == before  # restored
     finally:
         model.dynamics.config = original_config
+
+
+def test_a_policy_call_shares_its_instruction_by_itself(tiny, monkeypatch):
+    """Without gradients and with one instruction, TriVLA.encode_dynamics_batch enters shared_instruction itself (a
+    policy call, the feature cache); a nested entry reuses the processors in place."""
+    import trivla_drake.nn.trivla as trivla_module
+
+    model = tiny["model"]
+    entered = []
+
+    def spy(dynamics):
+        context = shared_instruction(dynamics)
+        entered.append(context)
+        return context
+
+    monkeypatch.setattr(trivla_module, "shared_instruction", spy)
+    static, wrist = _frames(model, 2, 6), _frames(model, 2, 7)
+    with torch.inference_mode():
+        model.encode_dynamics_batch(static, wrist, ["open the drawer"] * 2)
+        model.encode_dynamics_batch(static, wrist, ["open the drawer", "close the drawer"])
+        with shared_instruction(model.dynamics) as outer:
+            model.encode_dynamics_batch(static, wrist, ["open the drawer"] * 2)
+    assert len(entered) == 2 and sum(p.shared_calls for p in outer) > 0  # the nested call used the outer processors
 
 
 def test_mixed_instructions_take_the_plain_path(tiny):

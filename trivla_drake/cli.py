@@ -74,6 +74,12 @@ def _cmd_bench(args) -> int:
         else:
             print(format_benchmark_table(model_result))
         return 0
+    if config.throughput:
+        from trivla_drake.eval.throughput import format_throughput, run_throughput
+
+        figures = run_throughput(config.pipeline, progress=not args.json)
+        print(json.dumps(figures) if args.json else format_throughput(figures))
+        return 0
     from trivla_drake.eval.model_loading import check_model_choice
 
     check_model_choice(config.checkpoint, config.preset)  # before the station benchmarks, not after
@@ -162,16 +168,6 @@ def format_demo_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _seeds(comma_separated: str) -> list[int]:
-    """`tables --seeds`: the integers of a comma-separated list such as '1000,1001,1002'; else ValueError naming the
-    flag (their range is TablesConfig's to check)."""
-    try:
-        return [int(seed) for seed in comma_separated.split(",")]
-    except ValueError:
-        raise ValueError(f"--seeds must be comma-separated integer base seeds, e.g. 1000,1001,1002; got "
-                         f"{comma_separated!r}") from None
-
-
 def _cmd_tables(args) -> int:
     from trivla_drake.eval.cli_commands import TABLES_CHECKPOINT_FLAGS, TABLES_FLAGS, command_config, flag_values
     from trivla_drake.eval.paper_tables import TablesConfig, format_tables, make_tables, write_tables
@@ -181,7 +177,9 @@ def _cmd_tables(args) -> int:
             if path is not None:
                 config.checkpoints[role] = path
 
-    args.seeds = None if args.seeds is None else _seeds(args.seeds)
+    from trivla_drake.eval.evaluate_config import parse_seeds
+
+    args.seeds = None if args.seeds is None else parse_seeds(args.seeds)
     config = command_config(TablesConfig, args, flag_values(args, TABLES_FLAGS), finish=add_checkpoints)
     if config is None:
         return 0
@@ -204,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     commands = parser.add_subparsers(dest="command", required=True)
     from trivla_drake.config_io import add_config_arguments
-    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser
+    from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser, add_ray_arguments
     from trivla_drake.eval.demo_config import DEMO_TASK
     from trivla_drake.eval.evaluate_config import EVAL_BASE_SEED
 
@@ -263,8 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                     "and (unless --set reuse=false) the evaluations/ it reuses")
     tables.add_argument("--episodes", type=int, default=None, help="episodes per task and seed (default 5)")
     tables.add_argument("--seeds", default=None,
-                        help="comma-separated base seeds (default 1000,1001,1002: unseen by `collect`'s seed 0)")
-    tables.add_argument("--workers", type=int, default=None, help="worker processes (default 1)")
+                        help="base seeds, a range or a list, e.g. 1000-1002 or 1000,1001,1002 (the default: unseen by "
+                             "`collect`'s seed 0)")
+    add_ray_arguments(tables)
     add_config_arguments(tables)
     tables.add_argument("--json", action="store_true")
     tables.set_defaults(run=_cmd_tables)
@@ -272,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help=f"benchmarks: diff-IK and station speed, or --model latency; {more}, "
                                               "e.g. --set precision=bfloat16 --set seconds=2")
     bench.add_argument("--model", action="store_true", default=None, help="benchmark the TriVLA model instead")
+    bench.add_argument("--throughput", action="store_true", default=None,
+                       help="the data pipeline's speed at 1 and 2 workers instead: collect, feature cache, training, "
+                            "evaluate (a few minutes; settings: --set pipeline.FIELD=...)")
     bench.add_argument("--preset", default=None,
                        help="model preset (tiny, cpu, paper): with --model, the preset timed (default cpu); without, "
                             "an UNTRAINED model of it for the closed-loop figure instead of the shipped checkpoint")

@@ -6,6 +6,7 @@ import dataclasses as dc
 from typing import Optional
 
 from trivla_drake.eval.setting_checks import check_seconds
+from trivla_drake.eval.throughput_config import ThroughputConfig
 
 # Autocast dtypes `bench --model` times (nn/benchmark.py's PRECISIONS; named here so that the config needs no torch).
 PRECISIONS = ("float32", "bfloat16", "float16")
@@ -17,6 +18,10 @@ class BenchConfig:
 
     # Benchmark the TriVLA model (per-system latency, Table 4's shape) instead of the station.
     model: bool = False
+    # Measure the data pipeline's throughput instead (collect, feature cache, training, evaluate at 1 and 2 workers).
+    throughput: bool = False
+    # What the throughput figures run (with `throughput`).
+    pipeline: ThroughputConfig = dc.field(default_factory=ThroughputConfig)
     # Model preset (tiny, cpu, paper): with `model`, the preset timed (None: cpu); without, an UNTRAINED model of it
     # for the closed-loop figure instead of the shipped checkpoint.
     preset: Optional[str] = None
@@ -35,6 +40,10 @@ class BenchConfig:
 
     def validate(self) -> None:
         """ValueError naming the flag or field of a setting that cannot run."""
+        if self.model and self.throughput:
+            raise ValueError("--model and --throughput are two different benchmarks: give one")
+        if self.throughput:
+            self.pipeline.validate()
         check_seconds(self.seconds, "seconds")
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")

@@ -18,23 +18,25 @@ from collections.abc import Callable
 from typing import Any
 
 from trivla_drake.config_io import add_config_arguments
-from trivla_drake.eval.evaluate_config import EVAL_BASE_SEED
+from trivla_drake.eval.evaluate_config import EVAL_BASE_SEED, parse_seeds
 from trivla_drake.tasks.suite import TASK_NAMES
 
 
 # The flags of `collect` and `evaluate`: config field -> flag (the other fields are set with --set or --config).
 COLLECT_FLAGS = {"out": "--out", "episodes_per_task": "--episodes-per-task", "tasks": "--tasks", "seed": "--seed",
-                 "workers": "--workers"}
+                 "workers": "--workers", "ray_address": "--ray-address"}
 EVALUATE_FLAGS = {"policy": "--policy", "tasks": "--tasks", "episodes": "--episodes", "chains": "--chains",
-                  "seed": "--seed", "workers": "--workers", "paraphrases": "--paraphrases", "out": "--out"}
+                  "seed": "--seed", "seeds": "--seeds", "workers": "--workers", "ray_address": "--ray-address",
+                  "paraphrases": "--paraphrases", "out": "--out"}
 # `tables` (registered in cli.py): its TablesConfig fields' flags, and its checkpoints' (role -> flag).
-TABLES_FLAGS = {"out": "--out", "episodes": "--episodes", "seeds": "--seeds", "workers": "--workers"}
+TABLES_FLAGS = {"out": "--out", "episodes": "--episodes", "seeds": "--seeds", "workers": "--workers",
+                "ray_address": "--ray-address"}
 TABLES_CHECKPOINT_FLAGS = {"full": "--full", "system1_3": "--system1-3", "system1": "--system1", "data10": "--data10"}
 # `sim`, `demo` and `bench` (registered in cli.py): their SimConfig, DemoConfig and BenchConfig fields' flags.
 SIM_FLAGS = {"seconds": "--seconds", "meshcat": "--meshcat", "record": "--record"}
 DEMO_FLAGS = {name: "--" + name for name in ("policy", "checkpoint", "preset", "task", "instruction", "episodes",
                                               "chains", "seed", "latency", "meshcat", "record")}
-BENCH_FLAGS = {"model": "--model", "preset": "--preset", "checkpoint": "--checkpoint"}
+BENCH_FLAGS = {"model": "--model", "throughput": "--throughput", "preset": "--preset", "checkpoint": "--checkpoint"}
 
 
 def flag_values(args: argparse.Namespace, flags: dict[str, str]) -> dict[str, Any]:
@@ -57,6 +59,15 @@ def command_config(schema: type, args: argparse.Namespace, flags: dict[str, Any]
         print(dump_config(config), end="")
         return None
     return config
+
+
+def add_ray_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--workers` and `--ray-address`, where a rollout command's episodes run (eval/rollout_runner.py)."""
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes on this machine (default 1: in this process; more: a local Ray)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                        help="run on an existing Ray cluster instead, e.g. ray://head:10001 or auto "
+                             "(default: $RAY_ADDRESS if set)")
 
 
 def _user_errors():
@@ -104,6 +115,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     try:
         if args.tasks is not None:
             args.tasks = _task_list(args.tasks)
+        if args.seeds is not None:
+            if args.seed is not None:
+                raise ValueError("give --seed or --seeds, not both")
+            args.seeds = parse_seeds(args.seeds)
         config = command_config(EvalConfig, args, flag_values(args, EVALUATE_FLAGS))
         if config is None:
             return 0
@@ -130,7 +145,7 @@ def add_collect_parser(commands) -> argparse.ArgumentParser:
         help=f"tasks (default: all): {', '.join(TASK_NAMES)}; also accepts one comma-separated list",
     )
     parser.add_argument("--seed", type=int, default=None, help="base seed (default 0)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default 1)")
+    add_ray_arguments(parser)
     add_config_arguments(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
@@ -154,7 +169,10 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=None,
                         help=f"base seed (default {EVAL_BASE_SEED}: scenes unseen by demonstrations collected "
                              "with seed 0)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default 1)")
+    parser.add_argument("--seeds", default=None, metavar="SEEDS",
+                        help="several base seeds in one call, e.g. 1000-1017 or 1000,1001: each seed's figures and "
+                             "the pooled ones")
+    add_ray_arguments(parser)
     parser.add_argument("--paraphrases", action="store_true", default=None,
                         help="use held-out instruction paraphrases")
     parser.add_argument("--out", default=None, metavar="DIR",

@@ -20,10 +20,9 @@ import itertools
 import json
 import logging
 import shutil
+import tempfile
 from collections.abc import Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +39,7 @@ from trivla_drake.data.lerobot_format import (
 from trivla_drake.data.lerobot_stats import image_stats
 from trivla_drake.data.lerobot_writer import LeRobotWriter
 from trivla_drake.eval.collect_config import CollectConfig
-from trivla_drake.eval.evaluate import results_in_order
+from trivla_drake.eval.rollout_runner import RolloutRunner
 from trivla_drake.systems.action_executor import ACTION_NAMES, DEFAULT_ACTION_SPACE
 
 _log = logging.getLogger(__name__)
@@ -94,14 +93,15 @@ def _attempt(config: CollectConfig, task: str, attempt: int) -> dict:
         if len(trajectory.images.get(obs_key, ())) != len(trajectory):
             raise RuntimeError(f"{task} attempt {attempt}: {len(trajectory.images.get(obs_key, ()))} {obs_key} "
                                f"frames for {len(trajectory)} recorded steps")
-    staging = Path(config.out) / STAGING
+    # Encoded here, returned as bytes: a worker on another machine of a cluster cannot write into the dataset folder.
     out["videos"], out["video_stats"] = {}, {}
-    for obs_key, feature in CAMERAS.items():
-        frames = np.stack(trajectory.images[obs_key])
-        path = staging / f"{task}-{attempt:04d}-{obs_key}.mp4"
-        write_video(path, frames, DEFAULT_ACTION_SPACE.control_rate_hz)
-        out["videos"][feature] = str(path)
-        out["video_stats"][feature] = image_stats(frames)
+    with tempfile.TemporaryDirectory(prefix="trivla-attempt-") as folder:
+        for obs_key, feature in CAMERAS.items():
+            frames = np.stack(trajectory.images[obs_key])
+            path = Path(folder) / f"{obs_key}.mp4"
+            write_video(path, frames, DEFAULT_ACTION_SPACE.control_rate_hz, config.video_codec)
+            out["videos"][feature] = path.read_bytes()
+            out["video_stats"][feature] = image_stats(frames)
     out["frames"] = {
         "observation.state": np.stack(trajectory.states),
         "observation.tcp_pose": np.stack(trajectory.tcp_poses),
@@ -164,41 +164,20 @@ def collect(config: CollectConfig, *, progress: bool = True) -> dict:
     target = config.episodes_per_task * len(config.tasks)
     bar = tqdm(total=target, initial=sum(min(len(v), config.episodes_per_task) for v in done.values()),
                desc="collect", unit="ep", disable=not progress)
-    pool = None
-    if config.workers > 1:
-        pool = ProcessPoolExecutor(max_workers=config.workers, mp_context=get_context("spawn"))
     try:
-        ran = True
-        while ran:  # until a batch has no attempts left to run
-            ran = False
-            for result in _run_ordered(config, _next_batch(config, done, state.failed), pool):
-                ran = True
-                task, attempt = result["task"], result["attempt"]
-                if not result["success"]:
-                    state.add_failure(task, attempt, result["reason"])
-                    continue
-                writer.add_episode(
-                    result["frames"],
-                    result["instruction"],
-                    videos=result["videos"],
-                    video_stats=result["video_stats"],
-                    extra={
-                        EPISODE_TASK_KEY: task,
-                        "trivla/attempt": attempt,
-                        "trivla/seed": result["seed"],
-                        "trivla/params": list(result["params"]),
-                        # Every setting's column on every episode (EPISODE_COLUMN_DEFAULTS where unused): one schema.
-                        PERTURBED_FRAMES_KEY: result["perturbed_frames"],  # empty without a disturbance
-                        ACTION_NOISE_KEY: config.action_noise(),
-                        PRELUDE_KEY: list(result.get("prelude") or ()),
-                    },
-                )
-                done[task].add(attempt)
-                bar.update(1)
+        with RolloutRunner(config.workers, config.ray_address) as runner:
+            ran = True
+            while ran:  # until a batch has no attempts left to run
+                ran = False
+                batch = _next_batch(config, done, state.failed)
+                for result in runner.map_ordered(_attempt_job, config, batch, describe=_describe_attempt):
+                    ran = True
+                    _commit(writer, state, config, result)
+                    if result["success"]:
+                        done[result["task"]].add(result["attempt"])
+                        bar.update(1)
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
     shutil.rmtree(root / STAGING, ignore_errors=True)
     per_task = {t: len(done[t]) for t in config.tasks}
     short = {t: n for t, n in per_task.items() if n < config.episodes_per_task}
@@ -229,15 +208,41 @@ def _fresh_attempts(task: str, need: int, max_attempts: int, tried: set[int]) ->
     return ((task, attempt) for attempt in itertools.islice(fresh, max(need, 0)))
 
 
-def _run_ordered(config: CollectConfig, batch: Iterable[tuple[str, int]], pool):
-    """Yield the attempts' results in batch order (computed in `pool` if given, a few attempts ahead)."""
-    if pool is None:
-        for task, attempt in batch:
-            yield _attempt(config, task, attempt)
-        return
-    yield from results_in_order(pool, _attempt_job, config, batch, ahead=4 * config.workers)
-
-
 def _attempt_job(config: CollectConfig, job: tuple[str, int]) -> dict:
     """`_attempt` of one (task, attempt); top level: runs in workers."""
     return _attempt(config, *job)
+
+
+def _describe_attempt(job: tuple[str, int]) -> str:
+    return f"collect: {job[0]} attempt {job[1]}"
+
+
+def _commit(writer: LeRobotWriter, state: _Progress, config: CollectConfig, result: dict) -> None:
+    """Record one attempt's result: a failure in the progress file, a success as the dataset's next episode (its
+    videos staged in the dataset folder, then committed with its rows atomically)."""
+    task, attempt = result["task"], result["attempt"]
+    if not result["success"]:
+        state.add_failure(task, attempt, result["reason"])
+        return
+    staging = Path(config.out) / STAGING
+    staging.mkdir(parents=True, exist_ok=True)
+    videos = {}
+    for feature, data in result["videos"].items():
+        videos[feature] = staging / f"{task}-{attempt:04d}-{feature.rsplit('.', 1)[-1]}.mp4"
+        videos[feature].write_bytes(data)
+    writer.add_episode(
+        result["frames"],
+        result["instruction"],
+        videos={feature: str(path) for feature, path in videos.items()},
+        video_stats=result["video_stats"],
+        extra={
+            EPISODE_TASK_KEY: task,
+            "trivla/attempt": attempt,
+            "trivla/seed": result["seed"],
+            "trivla/params": list(result["params"]),
+            # Every setting's column on every episode (EPISODE_COLUMN_DEFAULTS where unused): one schema.
+            PERTURBED_FRAMES_KEY: result["perturbed_frames"],  # empty without a disturbance
+            ACTION_NOISE_KEY: config.action_noise(),
+            PRELUDE_KEY: list(result.get("prelude") or ()),
+        },
+    )

@@ -22,11 +22,13 @@ from trivla_drake.eval.env import SimulationError, TabletopEnv
 from trivla_drake.eval.policies import Policy, as_action_rows
 from trivla_drake.station.scenario import Scenario
 from trivla_drake.systems.action_executor import ACTION_HIGH, ACTION_LOW
+from trivla_drake.tasks.chain_benchmark import benchmark_scene, subtask_instance
 from trivla_drake.tasks.chains import CHAIN_LENGTH, next_chain_task, sample_chain_scene
 from trivla_drake.tasks.suite import TaskInstance, get_task, sample_task_instance
 
 if TYPE_CHECKING:
     from trivla_drake.eval.episode_starts import EpisodeStart
+    from trivla_drake.tasks.chain_benchmark import BenchmarkChain
 
 _log = logging.getLogger(__name__)
 
@@ -117,6 +119,10 @@ class ChainResult:
     reason: str = ""
     # With a hold check: how many tasks in a row succeeded and still held after the hold (None without).
     completed_lasting: int | None = None
+    # A stored benchmark chain's index (None for a chain drawn as it goes), and for each subtask attempted whether its
+    # stored parameters were among the task's candidates in the state the policy had left (CALVIN attempts it anyway).
+    chain_index: int | None = None
+    stored_task_feasible: list[bool] | None = None
 
     def to_dict(self) -> dict:
         out = {
@@ -127,6 +133,9 @@ class ChainResult:
         }
         if self.completed_lasting is not None:
             out["completed_lasting"] = self.completed_lasting
+        if self.chain_index is not None:
+            out["chain_index"] = self.chain_index
+            out["stored_task_feasible"] = list(self.stored_task_feasible or [])
         return out
 
 
@@ -360,33 +369,52 @@ def run_chain(
     scenario: Scenario | None = None,
     max_steps: int | None = None,
     hold_check: float | None = None,
+    chain: BenchmarkChain | None = None,
 ) -> ChainResult:
     """A chain of `length` tasks from one initial state, stopping at the first failure; each task gets
     `max_steps` control steps (None: its own budget), as single episodes do.
+
+    Without `chain`, the scene and each task are drawn from `seed`, each task in the state the previous one left.
+    With a stored benchmark chain (tasks/chain_benchmark.py), the scene comes from `chain.scene_seed` and the tasks
+    are its first `length` subtasks in order, each instruction (a paraphrase with `paraphrase`) from its subtask's
+    seed, and the policy's seed from the subtask's and `seed` (the runs of one chain with other seeds differ only in
+    the policy's own randomness, e.g. TriVLA's flow-matching noise); a subtask whose stored
+    parameters cannot start in the state the policy left is attempted anyway, as CALVIN does, and
+    `ChainResult.stored_task_feasible` says so.
 
     With `hold_check` (seconds) every success is followed by that hold (see `run_episode`) and the next task starts
     after it, so the chain differs from one without holds; `completed` counts its successes as the predicates first
     held (CALVIN's reading), and `completed_lasting` the tasks in a row whose success also held after the hold."""
     check_hold_check(hold_check)
+    if chain is not None and not 1 <= length <= len(chain.subtasks):
+        raise ValueError(f"length must be from 1 to the stored chain's {len(chain.subtasks)} subtasks, got {length}")
     if image_size is None and (policy.uses_images or video_path is not None):
         image_size = 224
     env = shared_env(image_size, scenario)
     hold = hold_steps(env, hold_check)
     rng = np.random.default_rng(seed)
-    spec = sample_chain_scene(rng, env.layout())
+    spec = sample_chain_scene(rng, env.layout()) if chain is None else benchmark_scene(chain.scene_seed, env.layout())
     recorder = _Recorder(False, video_path, env.action_space.control_rate_hz)
     result = ChainResult(seed, 0, [], completed_lasting=None if hold_check is None else 0)
+    if chain is not None:
+        result.chain_index, result.stored_task_feasible = chain.index, []
     used: set[str] = set()
     try:
         obs = env.reset(spec)
-        for _ in range(length):
-            instance = next_chain_task(env.scene(), rng, used, paraphrase=paraphrase)
-            if instance is None:
-                result.reason = "no task's preconditions hold (chain generator)"
-                break
-            used.add(instance.task)
+        for position in range(length):
+            if chain is None:
+                instance = next_chain_task(env.scene(), rng, used, paraphrase=paraphrase)
+                if instance is None:
+                    result.reason = "no task's preconditions hold (chain generator)"
+                    break
+                used.add(instance.task)
+                policy_seed = int(rng.integers(2**31))
+            else:
+                instance, stored_seed = subtask_instance(chain.subtasks[position], paraphrase=paraphrase)
+                policy_seed = derive_seed(stored_seed, seed) % 2**31
+                result.stored_task_feasible.append(instance.params in get_task(instance.task).candidates(env.scene()))
             sub, obs = _run_subtask(
-                env, obs, policy, instance, int(rng.integers(2**31)), max_steps or get_task(instance.task).max_steps,
+                env, obs, policy, instance, policy_seed, max_steps or get_task(instance.task).max_steps,
                 recorder, hold=hold
             )
             result.subtasks.append(sub)

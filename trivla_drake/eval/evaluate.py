@@ -8,14 +8,10 @@ so a run with `workers` processes gives exactly the results of a serial run with
 from __future__ import annotations
 
 import functools
-import itertools
 import json
 import math
-from collections import deque
-from collections.abc import Iterable, Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from collections.abc import Iterable
 from dataclasses import asdict
-from multiprocessing import get_context
 from pathlib import Path
 
 from trivla_drake.tasks.chains import CHAIN_LENGTH
@@ -61,20 +57,21 @@ def _chain_prelude(tasks: int):
 
 
 def _run_job(config: EvalConfig, job: tuple) -> dict:
-    """One episode or chain; top level so that worker processes can run it."""
+    """One episode or chain, job = (kind, task name, index, base seed); top level so that workers can run it."""
     from trivla_drake.eval.episode import derive_seed, run_chain, run_episode
 
     policy = _policy(*config.policy_key())
-    kind, name, index = job
+    kind, name, index, base_seed = job
     video = None
     if config.record_dir is not None:
-        video = Path(config.record_dir) / (f"{name}-{index:03d}.mp4" if kind == "episode" else f"chain-{index:03d}.mp4")
+        stem = f"{name}-{index:03d}" if kind == "episode" else f"chain-{index:03d}"
+        video = Path(config.record_dir) / (f"{stem}.mp4" if base_seed == config.seed else f"{stem}-seed{base_seed}.mp4")
     if kind == "episode":
-        seed = derive_seed(config.seed, name, index)
+        seed = derive_seed(base_seed, name, index)
         for redraw in range(PRELUDE_REDRAWS + 1):
             result = run_episode(
                 name,
-                seed if redraw == 0 else derive_seed(config.seed, name, index, "prelude", redraw),
+                seed if redraw == 0 else derive_seed(base_seed, name, index, "prelude", redraw),
                 policy,
                 paraphrase=config.paraphrases,
                 image_size=config.image_size,
@@ -87,60 +84,55 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
                 break
         return result.to_dict()
     return run_chain(
-        derive_seed(config.seed, "chain", index),
+        derive_seed(base_seed, "chain", index),
         policy,
         paraphrase=config.paraphrases,
         image_size=config.image_size,
         video_path=video,
         max_steps=config.max_steps,
         hold_check=config.hold_check,
+        **_benchmark_chain(config, index),
     ).to_dict()
 
 
-def _worker_init() -> None:
-    import logging
+@functools.lru_cache(maxsize=1)
+def _benchmark_chains() -> tuple:
+    """The fixed benchmark's chains, read once per process."""
+    from trivla_drake.tasks.chain_benchmark import load_benchmark_chains
 
-    import torch
+    return tuple(load_benchmark_chains())
 
-    logging.getLogger("drake").setLevel(logging.ERROR)
-    torch.set_num_threads(1)  # one process per core: threads would only fight over the cores
+
+def _benchmark_chain(config: EvalConfig, index: int) -> dict:
+    """run_chain's keyword for chain `index` of `config`'s chain source: the fixed benchmark's chain, or none (drawn)."""
+    return {"chain": _benchmark_chains()[index]} if config.chain_source == "benchmark" else {}
+
+
+def _describe_job(job: tuple) -> str:
+    kind, name, index, base_seed = job
+    return f"{name} episode {index} (seed {base_seed})" if kind == "episode" else f"chain {index} (seed {base_seed})"
 
 
 def run_jobs(config: EvalConfig, jobs: Iterable[tuple], *, progress: bool, description: str,
              total: int | None = None) -> list[dict]:
-    """Results of `jobs` (a list, or an iterable of `total` jobs, drawn as they run) in order, run in
-    `config.workers` processes."""
+    """Results of `jobs` (a list, or an iterable of `total` jobs, drawn as they run) in order, run in this process
+    (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s cluster."""
     from tqdm import tqdm
+
+    from trivla_drake.eval.rollout_runner import RolloutRunner
 
     total = len(jobs) if total is None else total  # type: ignore[arg-type]
     bar = tqdm(total=total, desc=description, disable=not progress, unit="ep")
     results: list[dict] = []
     try:
-        if config.workers == 1 or total <= 1:
-            for job in jobs:
-                results.append(_run_job(config, job))
+        workers = config.workers if total > 1 else 1
+        with RolloutRunner(workers, config.ray_address) as runner:
+            for result in runner.map_ordered(_run_job, config, jobs, describe=_describe_job):
+                results.append(result)
                 bar.update(1)
-        else:
-            with ProcessPoolExecutor(
-                max_workers=config.workers, mp_context=get_context("spawn"), initializer=_worker_init
-            ) as pool:
-                for result in results_in_order(pool, _run_job, config, jobs, ahead=4 * config.workers):
-                    results.append(result)
-                    bar.update(1)
     finally:
         bar.close()
     return results
-
-
-def results_in_order(pool: Executor, function, config, jobs: Iterable, *, ahead: int) -> Iterator:
-    """`function(config, job)` of each of `jobs`, computed in `pool`, yielded in the jobs' order; at most `ahead` jobs
-    are submitted beyond the one awaited, so a long (lazy) list of jobs is never drawn up front."""
-    jobs = iter(jobs)
-    pending = deque(pool.submit(function, config, job) for job in itertools.islice(jobs, ahead))
-    while pending:
-        result = pending.popleft().result()
-        pending.extend(pool.submit(function, config, job) for job in itertools.islice(jobs, 1))
-        yield result
 
 
 def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
@@ -310,15 +302,48 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
 def _evaluate(config: EvalConfig, progress: bool) -> dict:
     """`evaluate`'s runs and report, in this process's thread setting."""
     _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
-    # Drawn as they run, never listed up front: episode i of every task, then i + 1, ...
-    jobs = (("episode", name, i) for i in range(config.episodes) for name in config.tasks)
-    count = config.episodes * len(config.tasks)
+    seeds = config.seed_list()
+    # Drawn as they run, never listed up front: for each seed, episode i of every task, then i + 1, ...
+    jobs = (("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks)
+    count = config.episodes * len(config.tasks) * len(seeds)
     episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}",
                         total=count) if count else []
-    chain_jobs = (("chain", "chain", j) for j in range(config.chains))
-    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", total=config.chains)
+    chain_jobs = (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains))
+    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", total=config.chains * len(seeds))
               if config.chains else [])
-    return summarize(config, episodes, chains)
+    if config.seeds is None:
+        return summarize(config, episodes, chains)
+    return summarize_seeds(config, episodes, chains)
+
+
+def summarize_seeds(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
+    """The report of a run over several base seeds: `summarize` of all of them pooled (rates over every episode,
+    binomial standard errors), plus `per_seed` (each seed's average success and Avg. Len) and the spread across seeds
+    (`across_seeds`: the mean of the per-seed figures and its standard error, the figure to compare models by when
+    their seeds are paired)."""
+    import dataclasses
+
+    seeds = config.seed_list()
+    per_episode = config.episodes * len(config.tasks)
+    per_seed = []
+    for k, seed in enumerate(seeds):
+        one = summarize(dataclasses.replace(config, seed=seed, seeds=None),
+                        episodes[k * per_episode:(k + 1) * per_episode],
+                        chains[k * config.chains:(k + 1) * config.chains])
+        per_seed.append({"seed": seed, "average_success": one["average_success"],
+                         **({"chain_avg_len": one["chain_avg_len"]} if "chain_avg_len" in one else {})})
+    report = summarize(config, episodes, chains)
+    report["seed"] = None
+    report["seeds"] = seeds
+    report["per_seed"] = per_seed
+    across = {}
+    for figure in ("average_success", "chain_avg_len"):
+        values = [row[figure] for row in per_seed if row.get(figure) is not None]
+        if values:
+            across[figure], across[f"{figure}_stderr"] = _mean_and_stderr(values)
+    report["across_seeds"] = across
+    report["config"] = report_config(config)
+    return report
 
 
 def format_chain_markdown(report: dict) -> list[str]:
@@ -348,14 +373,33 @@ def format_chain_markdown(report: dict) -> list[str]:
             "| chain position | 1 | 2 | 3 | 4 | 5 |",
             "| --- | --- | --- | --- | --- | --- |",
             "| succeeded / tried | " + " | ".join(f"{r['succeeded']} / {r['tried']}" for r in c["by_position"]) + " |",
+            "| success rate | " + " | ".join(f"{r['succeeded'] / r['tried']:.2f}" if r["tried"] else "-"
+                                             for r in c["by_position"]) + " |",
         ]
+    return lines
+
+
+def format_seeds_markdown(report: dict) -> list[str]:
+    """The Markdown lines of a several-seed report's per-seed figures and their mean and standard error."""
+    chains = any("chain_avg_len" in row for row in report["per_seed"])
+    lines = ["", "| seed | average success |" + (" Avg. Len |" if chains else ""),
+             "| --- | --- |" + (" --- |" if chains else "")]
+    for row in report["per_seed"]:
+        success = "" if row["average_success"] is None else f"{row['average_success']:.3f}"
+        lines.append(f"| {row['seed']} | {success} |" + (f" {row['chain_avg_len']:.2f} |" if chains else ""))
+    across = report["across_seeds"]
+    cells = [f"{across[k]:.3f} ± {across[k + '_stderr']:.3f}" if k in across else ""
+             for k in ("average_success", "chain_avg_len")]
+    lines.append(f"| **mean ± s.e. across seeds** | {cells[0]} |" + (f" {cells[1]} |" if chains else ""))
     return lines
 
 
 def format_markdown(report: dict) -> str:
     """The report as a Markdown table (one row per task, then the average and chains)."""
+    seeds = report.get("seeds")
     lines = [
-        f"policy: {report['policy']}, seed {report['seed']}"
+        f"policy: {report['policy']}, " + (f"seed {report['seed']}" if not seeds else
+                                           f"seeds {', '.join(map(str, seeds))} (pooled)")
         + (", held-out paraphrases" if report["paraphrases"] else ""),
     ]
     if report["tasks"]:
@@ -368,6 +412,8 @@ def format_markdown(report: dict) -> str:
         cells = f" **{report['average_lasting_success']:.3f}** | |" if lasting else ""
         lines.append(f"| **average** | **{report['average_success']:.3f}** | |{cells} |")
     lines += format_chain_markdown(report)
+    if seeds:
+        lines += format_seeds_markdown(report)
     if report.get("after_prelude_task"):
         rows = report["after_prelude_task"]
         lines += ["", "| after the prelude's last task | " + " | ".join(rows) + " |",

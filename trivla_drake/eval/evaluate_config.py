@@ -17,6 +17,8 @@ EVAL_BASE_SEED = 1000
 # The most episodes per task (or chains) one run takes: more would run for months (an episode takes seconds), and a
 # number such as 10**20 is a typo to refuse before anything runs.
 MAX_EPISODES = 100_000
+# Where `evaluate --chains` takes its chains from (see EvalConfig.chain_source).
+CHAIN_SOURCES = ("benchmark", "drawn")
 
 
 @dc.dataclass
@@ -31,12 +33,24 @@ class EvalConfig:
     episodes: int = 10
     # Base seed of every episode's and chain's randomness.
     seed: int = EVAL_BASE_SEED
-    # Chains of five tasks to run (0: none).
+    # Base seeds to run in one call (None: [seed]), e.g. [1000, 1001, 1002] (`--seeds 1000-1002`); the report then has
+    # each seed's figures and the pooled ones.
+    seeds: Optional[list[int]] = None
+    # Chains of five tasks to run (0: none): the first `chains` of the fixed benchmark (tasks/chain_benchmark.py, at
+    # most BENCHMARK_CHAINS), or, with chain_source "drawn", chains drawn from each seed.
     chains: int = 0
+    # "benchmark": the fixed chains shipped with the package, chain j's scene and tasks the same whoever runs it (the
+    # seed draws the policy's noise only); "drawn": each chain drawn from the seed as it goes (reports before the
+    # benchmark existed, session 69).
+    chain_source: str = "benchmark"
     # Instructions from the held-out paraphrases instead of the training templates.
     paraphrases: bool = False
-    # Processes to run episodes in (1: in this process).
+    # Local worker processes (1: in this process; more: a local Ray with that many, started and stopped by the
+    # command). Ignored with ray_address.
     workers: int = 1
+    # An existing Ray cluster to run on (e.g. 'ray://head:10001' or 'auto'; None: $RAY_ADDRESS if set, else
+    # local). The results are the same as a serial run's, whatever the cluster's size.
+    ray_address: Optional[str] = None
     # Torch threads of a serial run (each worker process uses 1, so TriVLA's results do not depend on workers).
     threads: int = 1
     # Folder for report.json and eval_config.yaml (None: the report is only printed).
@@ -68,7 +82,19 @@ class EvalConfig:
         check_episode_count(self.chains, "--chains", minimum=0)
         if (not self.tasks or not self.episodes) and self.chains <= 0:
             raise ValueError("nothing to evaluate: give --tasks with --episodes >= 1, or --chains >= 1")
-        check_run_settings(self.tasks, self.seed)
+        for seed in self.seed_list():
+            check_run_settings(self.tasks, seed)
+        if self.seeds is not None and (not self.seeds or len(set(self.seeds)) != len(self.seeds)):
+            raise ValueError(f"--seeds must be distinct base seeds, at least one, got {self.seeds}")
+        if self.chain_source not in CHAIN_SOURCES:
+            raise ValueError(f"chain_source must be one of {', '.join(CHAIN_SOURCES)}, got {self.chain_source!r}")
+        if self.chains and self.chain_source == "benchmark":
+            from trivla_drake.tasks.chain_benchmark import BENCHMARK_SIZE as BENCHMARK_CHAINS
+
+            if self.chains > BENCHMARK_CHAINS:
+                raise ValueError(f"--chains must be at most {BENCHMARK_CHAINS} (the fixed benchmark's chains), got "
+                                 f"{self.chains}; more chains: --seeds (the same chains with other policy noise) or "
+                                 "--set chain_source=drawn")
         if self.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {self.workers}")
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -86,6 +112,10 @@ class EvalConfig:
             raise ValueError("policy_wrappers: home_first applies to learned policies, not to --policy oracle (it "
                              "plans from wherever the hand is)")
 
+    def seed_list(self) -> list[int]:
+        """The base seeds this config runs, in order."""
+        return [self.seed] if self.seeds is None else list(self.seeds)
+
     def policy_key(self) -> tuple:
         """What loads this config's policy (see evaluate's `_policy`): hashable."""
         inference = self.inference
@@ -99,3 +129,23 @@ def check_episode_count(count: int, flag: str, *, minimum: int = 1) -> int:
         raise ValueError(f"{flag} must be at least {minimum} and at most {MAX_EPISODES} (an integer; MAX_EPISODES: a "
                          f"larger run would take months, split it into runs of other seeds), got {count!r}")
     return count
+
+
+def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
+    """The base seeds of a flag such as '1000-1017' (a range, both ends included) or '1000,1005,1010' (a list; the
+    two mix: '1000-1002,2000'); ValueError naming `flag` (their range is the config's to check)."""
+    seeds: list[int] = []
+    try:
+        for part in text.split(","):
+            first, sep, last = part.strip().partition("-")
+            if sep and first:  # a range (not a negative number, which the config refuses)
+                low, high = int(first), int(last)
+                if high < low or high - low >= MAX_EPISODES:
+                    raise ValueError
+                seeds.extend(range(low, high + 1))
+            else:
+                seeds.append(int(part))
+    except ValueError:
+        raise ValueError(f"{flag} must be base seeds as a range or a comma-separated list, e.g. 1000-1017 or "
+                         f"1000,1001,1002; got {text!r}") from None
+    return seeds

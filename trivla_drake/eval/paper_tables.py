@@ -87,10 +87,13 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
     def one_seed(seed: int) -> dict:
         eval_config = EvalConfig(policy=checkpoint, tasks=config.tasks, episodes=config.episodes, seed=seed,
                                  chains=chains, paraphrases=paraphrases, workers=config.workers,
+                                 ray_address=config.ray_address, chain_source=config.chain_source,
                                  max_steps=config.max_steps, inference=copy.deepcopy(config.inference),
                                  threads=config.threads)
         settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
+        if chains:  # the fixed benchmark's chains (evaluations stored before it drew theirs from the seed)
+            settings["chain_source"] = eval_config.chain_source
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
 
     reports = [one_seed(seed) for seed in config.seeds]

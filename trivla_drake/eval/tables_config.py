@@ -29,14 +29,21 @@ class TablesConfig:
     episodes: int = 5
     # Base seeds: each is a full evaluation, the spread across them is the standard error.
     seeds: list[int] = dc.field(default_factory=lambda: [EVAL_BASE_SEED + i for i in range(3)])
-    # 5-task chains per seed, for Avg. Len.
+    # 5-task chains per seed, for Avg. Len: the first `chains` of the fixed benchmark (the same chains for every seed,
+    # each seed drawing the policy's noise), or with chain_source "drawn" chains drawn from each seed.
     chains: int = 5
+    # Where the chains come from (EvalConfig.chain_source): "benchmark" or "drawn" (tables before session 69).
+    chain_source: str = "benchmark"
     # Episodes per task for the latency comparison (Drake systems, slower than the harness).
     latency_episodes: int = 2
     # Tasks for the latency comparison.
     latency_tasks: list[str] = dc.field(default_factory=lambda: ["lift_block", "turn_on_light", "open_drawer"])
-    # Processes for the harness.
+    # Local worker processes (1: in this process; more: a local Ray with that many, started and stopped by the
+    # command). Ignored with ray_address.
     workers: int = 1
+    # An existing Ray cluster to run on (e.g. 'ray://head:10001' or 'auto'; None: $RAY_ADDRESS if set, else
+    # local). The results are the same as a serial run's, whatever the cluster's size.
+    ray_address: Optional[str] = None
     # Cap on steps per episode (None: each task's own).
     max_steps: Optional[int] = None
     # Store each evaluation (one checkpoint, seed and setting) and reuse the stored ones, so a killed or extended
@@ -67,6 +74,10 @@ class TablesConfig:
             raise ValueError("--seeds is empty: give one or more comma-separated base seeds, e.g. 1000,1001,1002")
         for seed in self.seeds:
             check_seed(seed, "--seeds")  # evaluate's range for its --seed, before anything runs
+        from trivla_drake.eval.evaluate_config import CHAIN_SOURCES
+
+        if self.chain_source not in CHAIN_SOURCES:
+            raise ValueError(f"chain_source must be one of {', '.join(CHAIN_SOURCES)}, got {self.chain_source!r}")
         repeated = sorted({seed for seed in self.seeds if self.seeds.count(seed) > 1})
         if repeated:
             raise ValueError(f"--seeds names {repeated} more than once (each seed is one sample of the stderr)")

@@ -126,6 +126,9 @@ def shared_instruction(dynamics: nn.Module | None) -> Iterator[list[SharedContex
         return
     attentions = _cross_attentions(dynamics.unet)
     previous = [m.processor for m in attentions]
+    if any(isinstance(p, SharedContextAttnProcessor) for p in previous):  # already inside one: nothing to add
+        yield [p for p in previous if isinstance(p, SharedContextAttnProcessor)]
+        return
     installed = [SharedContextAttnProcessor(p) for p in previous]
     text_encoder = getattr(dynamics, "text_encoder", None)
     try:

@@ -13,6 +13,8 @@ is frozen, never saved in checkpoints nor moved with the model, and reads each i
 
 from __future__ import annotations
 
+import contextlib
+
 from typing import Any, Mapping
 
 import numpy as np
@@ -29,6 +31,7 @@ from trivla_drake.nn.normalization import NormalizationStats, Normalizer
 from trivla_drake.nn.observation import check_embodiment_id, check_image, check_observation, check_state
 from trivla_drake.nn.policy import FlowMatchingPolicy, check_noise_scale
 from trivla_drake.nn.text_encoder import PretrainedTextEncoder, load_text_encoder, sentence_then_tokens
+from trivla_drake.nn.shared_instruction import shared_instruction
 from trivla_drake.nn.tokenizer import TextTokenizer, load_tokenizer
 from trivla_drake.nn.trivla_losses import TriVLATrainingLosses
 from trivla_drake.nn.vision_language import VisionLanguageModule
@@ -329,7 +332,11 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
         wrist = self._images(wrist_rgb, "wrist_rgb")
         text = self._dyn_instruction_ids(list(instructions), "instruction")
         both = torch.cat([text, text]) if torch.is_tensor(text) else text + text
-        features = self.dynamics(torch.cat([static, wrist]), both, generator=generator)
+        # One instruction without gradients (a policy call, the feature cache): its work once, not per frame and view
+        # (nn/shared_instruction.py; the same numbers). Training batches of mixed instructions take the plain path.
+        once = not torch.is_grad_enabled() and len(set(instructions)) == 1
+        with shared_instruction(self.dynamics) if once else contextlib.nullcontext():
+            features = self.dynamics(torch.cat([static, wrist]), both, generator=generator)
         return features[: static.shape[0]], features[static.shape[0] :]
 
     def _conditions(self, q_s, q_vl, q_vl_mask, f_static, f_wrist, state=None):

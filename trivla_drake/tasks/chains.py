@@ -13,7 +13,7 @@ from trivla_drake.tasks.suite import TASK_NAMES, TASKS, TaskInstance
 
 CHAIN_LENGTH = 5
 # Tasks that leave a block in the hand, and the tasks that can follow them.
-_NEEDS_FOLLOW_UP = {"lift_block": ("place_in_bowl", "stack_block")}
+NEEDS_FOLLOW_UP = {"lift_block": ("place_in_bowl", "stack_block")}
 
 
 def sample_chain_scene(rng: np.random.Generator, layout: Layout) -> SceneSpec:
@@ -21,7 +21,7 @@ def sample_chain_scene(rng: np.random.Generator, layout: Layout) -> SceneSpec:
     return sample_scene(rng, layout, stack=bool(rng.random() < 0.3))
 
 
-def _lifted(scene: SceneState, color: str) -> SceneState:
+def lifted_scene(scene: SceneState, color: str) -> SceneState:
     """`scene` as it would look with `color` held 15 cm above the table."""
     lifted = copy.copy(scene)
     lifted.blocks = dict(scene.blocks)
@@ -44,9 +44,9 @@ def chain_options(scene: SceneState, used: set[str]) -> dict[str, list[tuple]]:
             if name in used and not allow_used:
                 continue
             params = TASKS[name].candidates(scene)
-            if name in _NEEDS_FOLLOW_UP:
-                follow = _NEEDS_FOLLOW_UP[name]
-                params = [p for p in params if any(TASKS[f].candidates(_lifted(scene, p[0])) for f in follow)]
+            if name in NEEDS_FOLLOW_UP:
+                follow = NEEDS_FOLLOW_UP[name]
+                params = [p for p in params if any(TASKS[f].candidates(lifted_scene(scene, p[0])) for f in follow)]
             if params:
                 out[name] = params
         return out

@@ -51,7 +51,6 @@ import torch
 
 from trivla_drake.data.durable import atomic_write_text
 from trivla_drake.data.lerobot_reader import LeRobotReader
-from trivla_drake.nn.shared_instruction import shared_instruction
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
 from trivla_drake.train.datasets import episode_content_fingerprint, episode_fingerprint, resize_frames
@@ -175,20 +174,20 @@ def compute_episode_features(
     generator = torch.Generator().manual_seed(_episode_seed(config.features.seed, episode_fingerprint(reader, episode)))
     parts: dict[str, list[torch.Tensor]] = {}
     run_dynamics = model.dynamics is not None and not lent
-    with shared_instruction(model.dynamics if run_dynamics else None):  # one instruction per episode
-        for start in range(0, len(frames_index), config.features.batch_size):
-            s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.features.batch_size]))
-            w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.features.batch_size]))
-            texts = [instruction] * len(s)
-            if model.vision_language is not None:
-                q_vl, mask = model.encode_vision_language_batch(s, w, texts)
-                if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
-                    raise RuntimeError("unexpected padding in System 2's tokens of one episode")
-                parts.setdefault("q_vl", []).append(q_vl.float().cpu())
-            if run_dynamics:
-                f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
-                parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
-                parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
+    # One instruction per episode: System 3 does its work once per batch (TriVLA.encode_dynamics_batch).
+    for start in range(0, len(frames_index), config.features.batch_size):
+        s = torch.from_numpy(np.ascontiguousarray(static[start : start + config.features.batch_size]))
+        w = torch.from_numpy(np.ascontiguousarray(wrist[start : start + config.features.batch_size]))
+        texts = [instruction] * len(s)
+        if model.vision_language is not None:
+            q_vl, mask = model.encode_vision_language_batch(s, w, texts)
+            if not bool(mask.all()):  # one instruction per episode: no padding inside a shard
+                raise RuntimeError("unexpected padding in System 2's tokens of one episode")
+            parts.setdefault("q_vl", []).append(q_vl.float().cpu())
+        if run_dynamics:
+            f_static, f_wrist = model.encode_dynamics_batch(s, w, texts, generator=generator)
+            parts.setdefault("dynamics_static", []).append(f_static.float().cpu())
+            parts.setdefault("dynamics_wrist", []).append(f_wrist.float().cpu())
     out = {}
     for key, chunks in parts.items():
         full = torch.cat(chunks)
