@@ -42,10 +42,10 @@ BENCHMARK_BASE_SEED = 76
 # Bumped whenever the generator would draw other chains from the same seed.
 GENERATOR_VERSION = 1
 # sha256 of the shipped chains' canonical JSON (`chains_sha256`): a changed file is refused on load.
-BENCHMARK_SHA256 = ""
+BENCHMARK_SHA256 = "3b69a472f2db150bc64bb72543e35c02924d0ffc674a7354eff0cbb5ac7f4e37"
 # sha256 of the shipped chains' initial scenes (`benchmark_scenes_sha256`): a scene sampler that draws other scenes
 # from the same seeds would start every chain elsewhere than where it was generated (a test compares).
-BENCHMARK_SCENES_SHA256 = ""
+BENCHMARK_SCENES_SHA256 = "865facb6ef92691c6f742531f39b6b2b807281de628d14d9b684d3226798e15d"
 BENCHMARK_FILE = Path(__file__).parent / "data" / "benchmark_chains.json"
 _LIFT = "lift_block"
 
