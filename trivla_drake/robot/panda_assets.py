@@ -19,6 +19,7 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from trivla_drake.robot.panda_description import (
     ARM_JOINTS,
@@ -60,7 +61,11 @@ def drake_panda_dir() -> Path:
     final.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=final.name + ".tmp-", dir=final.parent))
     try:
-        _convert_into(staging)
+        # Thousands of small matrix products: BLAS threads only spin, and with other busy processes on the cores
+        # (a parallel test run, Ray workers converting at once) spinning threads made a 2 s conversion take minutes.
+        # One thread gives the same numbers.
+        with threadpool_limits(limits=1, user_api="blas"):
+            _convert_into(staging)
         (staging / _COMPLETE_MARKER).write_text("ok\n")
         try:
             os.rename(staging, final)
