@@ -59,11 +59,16 @@ def test_fields_newer_than_a_checkpoint_take_the_value_that_reproduces_it(saved,
     assert loaded.config.policy.subgoal_offset is False and loaded.config.policy.grounding_reads_gripper is False
 
 
+def _holder(data: dict, dotted: str) -> tuple[dict, str]:
+    """The dict holding a dotted config field and its name (top-level fields, e.g. text_encoder, have no section)."""
+    *sections, name = dotted.split(".")
+    return (data[sections[0]] if sections else data), name
+
+
 def test_every_omittable_field_exists_with_a_valid_value():
     data = config_to_dict(TriVLAConfig())
     for dotted in FIELDS_OLDER_CHECKPOINTS_OMIT:
-        *sections, name = dotted.split(".")  # top-level fields (text_encoder) have no section
-        holder = data[sections[0]] if sections else data
+        holder, name = _holder(data, dotted)
         assert name in holder, dotted
         del holder[name]
     config_from_dict(data)
@@ -81,8 +86,7 @@ def test_the_shipped_config_json_holds_every_field_and_loads_unchanged():
         section, name = dotted.split(".")
         assert expected[section].pop(name) == json.loads(json.dumps(off)), dotted  # listed, and off
     for dotted, value in FIELDS_OLDER_CHECKPOINTS_OMIT.items():
-        *sections, name = dotted.split(".")
-        holder = expected[sections[0]] if sections else expected
+        holder, name = _holder(expected, dotted)
         holder.setdefault(name, json.loads(json.dumps(value)))
     assert json.loads(json.dumps(config_to_dict(config_from_dict(meta["config"])))) == expected
 

@@ -58,18 +58,17 @@ def main() -> int:
         for bucket, (suffix, function) in BUCKETS:
             if filename.endswith(suffix) and (name == function or (suffix == "~" and function in name)):
                 cumulative[bucket] = cumulative.get(bucket, 0.0) + cum
-    profiled = wall  # cProfile's own total leaves out time inside compiled calls
-    shares = {bucket: seconds for bucket, seconds in cumulative.items()}
-    shares["rest (episode bookkeeping, scene set-up, stats)"] = profiled - sum(cumulative.values())
+    # Shares of the wall time (cProfile's own total leaves out time inside compiled calls).
+    shares = {**cumulative, "rest (episode bookkeeping, scene set-up, stats)": wall - sum(cumulative.values())}
     report = {"prelude_tasks": args.prelude, "demonstrations": demos, "recorded_frames": frames,
               "wall_seconds": wall, "demonstrations_per_minute": 60 * demos / wall,
               "ms_per_recorded_frame": 1000 * wall / max(frames, 1),
-              "seconds": shares, "share": {k: v / profiled for k, v in shares.items()}}
+              "seconds": shares, "share": {k: v / wall for k, v in shares.items()}}
     print(f"{demos} demonstrations ({frames} recorded frames) in {wall:.1f} s: "
           f"{report['demonstrations_per_minute']:.1f} / min on one core, {report['ms_per_recorded_frame']:.1f} ms "
           f"per recorded frame")
     for bucket, seconds in sorted(shares.items(), key=lambda kv: -kv[1]):
-        print(f"  {bucket:48s} {seconds:7.1f} s  {100 * seconds / profiled:5.1f} %")
+        print(f"  {bucket:48s} {seconds:7.1f} s  {100 * seconds / wall:5.1f} %")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(report, f, indent=2)

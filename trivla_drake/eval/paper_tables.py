@@ -92,9 +92,9 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
                                  threads=config.threads)
         settings = {"kind": "evaluate", "tasks": list(config.tasks), "episodes": config.episodes, "seed": seed,
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
-        if chains and eval_config.chain_source != "drawn":  # evaluations stored before the fixed benchmark
-            settings["chain_source"] = eval_config.chain_source  # drew their chains from the seed: same key
-
+        # Chains drawn from the seed keep the key of evaluations stored before the fixed benchmark existed.
+        if chains and eval_config.chain_source != "drawn":
+            settings["chain_source"] = eval_config.chain_source
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
 
     reports = [one_seed(seed) for seed in config.seeds]
