@@ -22,9 +22,18 @@ from trivla_drake.eval.rollout_runner import MAX_RETRIES, RolloutError, RolloutR
 def local_ray():
     """One local Ray with 2 worker CPUs for this file's tests (each runner then joins it instead of starting one)."""
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the jobs below live in this test file
-    rollout_runner.start_local_ray(2)
+    with pytest.MonkeyPatch.context() as patch:  # as `trivla-drake --text-encoder FOLDER` sets it
+        patch.setenv(rollout_runner.FORWARDED_ENV[0], TEXT_ENCODER_FOLDER)
+        rollout_runner.start_local_ray(2)
     yield
     ray.shutdown()
+
+
+TEXT_ENCODER_FOLDER = "/models/all-MiniLM-L6-v2"
+
+
+def _worker_env(config, job):
+    return os.getpid(), os.environ.get(rollout_runner.FORWARDED_ENV[0])
 
 
 def _slower_first(config, job):
@@ -56,6 +65,13 @@ def test_results_come_in_job_order_from_two_workers(local_ray):
         results = list(runner.map_ordered(_slower_first, "c", range(6)))
     assert [(config, job) for config, job, _ in results] == [("c", i) for i in range(6)]
     assert len({pid for _, _, pid in results}) == 2 and os.getpid() not in {pid for _, _, pid in results}
+
+
+def test_workers_get_the_text_encoder_the_driver_was_given(local_ray):
+    with RolloutRunner(workers=2) as runner:
+        found = list(runner.map_ordered(_worker_env, None, range(4)))
+    assert {folder for _, folder in found} == {TEXT_ENCODER_FOLDER}
+    assert all(pid != os.getpid() for pid, _ in found)
 
 
 def test_jobs_are_drawn_a_few_ahead_not_all_up_front(local_ray):

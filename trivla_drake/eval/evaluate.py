@@ -114,25 +114,36 @@ def _describe_job(job: tuple) -> str:
 
 
 def run_jobs(config: EvalConfig, jobs: Iterable[tuple], *, progress: bool, description: str,
-             total: int | None = None) -> list[dict]:
-    """Results of `jobs` (a list, or an iterable of `total` jobs, drawn as they run) in order, run in this process
-    (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s cluster."""
+             journal=None) -> list[dict]:
+    """Results of `jobs` in order, run in this process
+    (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s cluster.
+    With a `journal` (eval/evaluation_journal.py), jobs it holds are not run again and each new result is stored
+    in it as it comes."""
     from tqdm import tqdm
 
     from trivla_drake.eval.rollout_runner import RolloutRunner
 
-    total = len(jobs) if total is None else total  # type: ignore[arg-type]
-    bar = tqdm(total=total, desc=description, disable=not progress, unit="ep")
-    results: list[dict] = []
+    jobs = list(jobs)  # at most MAX_EPISODES tuples per seed; walked twice
+    stored = {i: journal.result(job) for i, job in enumerate(jobs)} if journal is not None else {}
+    stored = {i: result for i, result in stored.items() if result is not None}
+    pending = [job for i, job in enumerate(jobs) if i not in stored]
+    bar = tqdm(total=len(jobs), initial=len(stored), desc=description, disable=not progress, unit="ep")
+    if stored and progress:
+        bar.write(f"{description}: {len(stored)} of {len(jobs)} results taken from {journal.path}")
+    fresh: list[dict] = []
     try:
-        workers = config.workers if total > 1 else 1
+        workers = config.workers if len(pending) > 1 else 1
         with RolloutRunner(workers, config.ray_address) as runner:
-            for result in runner.map_ordered(_run_job, config, jobs, describe=_describe_job):
-                results.append(result)
+            for job, result in zip(pending, runner.map_ordered(_run_job, config, pending, describe=_describe_job)):
+                result = json.loads(json.dumps(result))  # as a stored one reads back
+                if journal is not None:
+                    journal.append(job, result)
+                fresh.append(result)
                 bar.update(1)
     finally:
         bar.close()
-    return results
+    fresh_results = iter(fresh)
+    return [stored[i] if i in stored else next(fresh_results) for i in range(len(jobs))]
 
 
 def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
@@ -302,15 +313,19 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
 def _evaluate(config: EvalConfig, progress: bool) -> dict:
     """`evaluate`'s runs and report, in this process's thread setting."""
     _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
+    journal = None
+    if config.out is not None:
+        from trivla_drake.eval.evaluation_journal import EvaluationJournal, journal_key
+
+        journal = EvaluationJournal(config.out, journal_key(config))
     seeds = config.seed_list()
-    # Drawn as they run, never listed up front: for each seed, episode i of every task, then i + 1, ...
-    jobs = (("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks)
-    count = config.episodes * len(config.tasks) * len(seeds)
+    # For each seed, episode i of every task, then i + 1, ...
+    jobs = [("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks]
     episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}",
-                        total=count) if count else []
-    chain_jobs = (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains))
-    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", total=config.chains * len(seeds))
-              if config.chains else [])
+                        journal=journal) if jobs else []
+    chain_jobs = [("chain", "chain", j, seed) for seed in seeds for j in range(config.chains)]
+    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", journal=journal)
+              if chain_jobs else [])
     if config.seeds is None:
         return summarize(config, episodes, chains)
     return summarize_seeds(config, episodes, chains)

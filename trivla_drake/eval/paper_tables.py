@@ -119,7 +119,7 @@ def _model_figures(checkpoint: str, repeats: int = 5) -> dict:
         start = time.perf_counter()
         model.predict_action_chunk(observation, seed=i)
         times.append(time.perf_counter() - start)
-    return {"params_millions": sum(p.numel() for p in model.parameters()) / 1e6,
+    return {"params_millions": model.parameter_counts()["total"] / 1e6,
             "latency_ms": 1e3 * float(np.median(times[1:]))}
 
 

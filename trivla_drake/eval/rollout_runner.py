@@ -32,6 +32,8 @@ AHEAD_PER_WORKER = 4
 # The local Ray's shared-object store [bytes]: results are a few MB at most (an episode's states and videos).
 LOCAL_OBJECT_STORE_BYTES = 512 * 1024 * 1024
 ADDRESS_ENV = "RAY_ADDRESS"
+# Environment variables the workers get from the driver (nn/text_encoder.py's OVERRIDE_ENV; not imported: torch).
+FORWARDED_ENV = ("TRIVLA_DRAKE_TEXT_ENCODER",)
 
 
 class RolloutError(RuntimeError):
@@ -59,6 +61,12 @@ def _run_in_worker(function: Callable[[Any, Any], Any], config: Any, job: Any) -
     return function(config, job)
 
 
+def forwarded_env() -> dict[str, str]:
+    """The driver's settings every worker needs too: the text encoder a run's checkpoints read
+    (`trivla-drake --text-encoder`, $TRIVLA_DRAKE_TEXT_ENCODER; on a cluster, a folder every node has)."""
+    return {name: os.environ[name] for name in FORWARDED_ENV if os.environ.get(name)}
+
+
 def start_local_ray(workers: int) -> None:
     """`ray.init` of a local Ray with `workers` worker CPUs for rollouts: no dashboard, a small object store, one
     thread per worker, and workers at the driver's priority (Ray's default lowers theirs, niceness 15, so any other
@@ -66,7 +74,7 @@ def start_local_ray(workers: int) -> None:
     import ray
 
     ray.init(address="local", num_cpus=workers, include_dashboard=False, object_store_memory=LOCAL_OBJECT_STORE_BYTES,
-             logging_level=logging.WARNING, runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}},
+             logging_level=logging.WARNING, runtime_env={"env_vars": {"OMP_NUM_THREADS": "1", **forwarded_env()}},
              _system_config={"worker_niceness": 0})
 
 
@@ -113,7 +121,9 @@ class RolloutRunner:
         self._ray = ray
         if not ray.is_initialized():
             if self.address is not None:
-                ray.init(address=self.address, logging_level=logging.WARNING, log_to_driver=True)
+                env = forwarded_env()
+                ray.init(address=self.address, logging_level=logging.WARNING, log_to_driver=True,
+                         runtime_env={"env_vars": env} if env else None)
             else:
                 # RAY_ADDRESS must not send a local run to a cluster it did not ask for (resolve_address read it).
                 start_local_ray(self.workers)

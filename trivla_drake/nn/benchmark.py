@@ -216,6 +216,10 @@ def format_benchmark_table(result: dict[str, Any]) -> str:
         f"| System 3: dynamics perception, both views (F_p) | {params['system3']:.2f} | {latency['system3']:.1f} |",
         f"| System 1: policy, {result['euler_steps']} Euler steps | {params['system1']:.2f} "
         f"| {latency['system1']:.1f} |",
+    ]
+    if "text_encoder" in params:  # frozen, run once per instruction, and not in the checkpoint
+        lines.append(f"| Pretrained text encoder (frozen, once per instruction) | {params['text_encoder']:.2f} | |")
+    lines += [
         f"| Full inference | {params['total']:.2f} | {latency['full']:.1f} |",
         "",
         "| VL-M (S2) | DP-M (S3) | PL-M (S1) | Latency (ms) | Params (M) |",
@@ -254,5 +258,6 @@ _SYSTEM_NAMES = (
     ("system2", "System 2: vision-language"),
     ("system3", "System 3: dynamics perception"),
     ("system1", "System 1: policy"),
+    ("text_encoder", "Pretrained text encoder (frozen)"),
     ("total", "Total"),
 )

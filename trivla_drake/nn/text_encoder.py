@@ -45,6 +45,9 @@ HASHED_FILES = (WEIGHTS_FILE, TOKENIZER_FILE)
 HASH_FILE = "trivla_content_sha256.txt"
 """Written into an extraction last, before the rename: an extraction without it is not whole."""
 CACHE_ENV = "TRIVLA_DRAKE_CACHE"
+# Where the encoder a checkpoint records lies on this machine when it is not where the checkpoint says (a folder, or
+# PACKAGE_SPEC): read by `load_checkpoint` when no `text_encoder` is passed; set by `trivla-drake --text-encoder`.
+OVERRIDE_ENV = "TRIVLA_DRAKE_TEXT_ENCODER"
 CACHE_ENTRIES = 2048
 """Instructions whose token states `PretrainedTextEncoder` keeps (about 25 kB each)."""
 
@@ -80,6 +83,11 @@ def cache_root() -> Path:
         return Path(os.environ[CACHE_ENV])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "trivla_drake"
+
+
+def text_encoder_override() -> str | None:
+    """The text encoder spec $TRIVLA_DRAKE_TEXT_ENCODER names for every checkpoint loaded (None when unset)."""
+    return os.environ.get(OVERRIDE_ENV) or None
 
 
 def locate_minilm() -> Path:

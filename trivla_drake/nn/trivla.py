@@ -179,7 +179,9 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
 
     def parameter_counts(self) -> dict[str, int]:
         """Parameters per system: system2 (SigLIP, projector, LLM), system3 (VAE, CLIP text, UNet),
-        system1 (state encoder, Video Former, DiT, action encoder/decoder), and total."""
+        system1 (state encoder, Video Former, DiT, action encoder/decoder); with a pretrained text encoder
+        (`config.text_encoder`), text_encoder: its frozen parameters, which run at inference but are not in the
+        checkpoint; and total, all of them."""
 
         def count(module: nn.Module | None) -> int:
             return sum(p.numel() for p in module.parameters()) if module is not None else 0
@@ -189,6 +191,8 @@ class TriVLA(TriVLATrainingLosses, nn.Module):
             "system3": count(self.dynamics),
             "system1": count(self.policy),
         }
+        if self.text_encoder is not None:
+            counts["text_encoder"] = count(self.text_encoder)
         counts["total"] = sum(counts.values())
         return counts
 

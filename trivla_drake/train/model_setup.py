@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from trivla_drake.nn.checkpoint import load_checkpoint, read_checkpoint_config
-from trivla_drake.nn.config import TriVLAConfig
+from trivla_drake.nn.config import TriVLAConfig, text_encoder_feeds
 from trivla_drake.nn.presets import PRESETS, make_config
 from trivla_drake.nn.trivla import TriVLA
 from trivla_drake.train.config import TrainConfig
@@ -103,11 +103,29 @@ def replace_system2(model: TriVLA, donor: TriVLA, where: str) -> TriVLA:
         if a != b:
             raise ValueError(f"{where}: its System 2's {name} is {b}, the --init model's {a}: "
                              "System 1 reads Q_vl laid out as the --init model's")
+    _check_same_instruction_reader(model, donor, where)
     if mine.config.drop_unused_llm_layers:
         theirs.drop_layers_above_readout()
     model.vision_language = theirs.to(model.device)
     model.config = dataclasses.replace(model.config, vision_language=theirs.config)
     return model
+
+
+def _check_same_instruction_reader(model: TriVLA, donor: TriVLA, where: str) -> None:
+    """ValueError unless both System 2s read the instruction alike: both embed its tokens themselves, or both read
+    the states of the same pretrained text encoder (`TriVLAConfig.text_encoder`, by content hash)."""
+    def reader(m: TriVLA) -> str | None:
+        return m.text_encoder.content_hash if text_encoder_feeds(m.config, 2) else None
+
+    mine, theirs = reader(model), reader(donor)
+    if mine == theirs:
+        return
+
+    def words(m: TriVLA, digest: str | None) -> str:
+        return ("embeds the instruction's tokens itself" if digest is None else
+                f"reads the text encoder {m.config.text_encoder!r} (content sha256 {digest[:12]}…)")
+    raise ValueError(f"{where}: its System 2 {words(donor, theirs)}, the --init model's {words(model, mine)}: "
+                     "replace System 2 only with one that reads the instruction as the --init model's does")
 
 
 def resolve_preset(config: TrainConfig) -> str:
