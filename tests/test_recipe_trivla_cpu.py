@@ -65,3 +65,20 @@ def test_copy_dataset_copies_once_and_never_touches_an_existing_copy(tmp_path):
     assert (tmp_path / "copy" / "extended").read_text() == "later stages extend the copy"
     with pytest.raises(ValueError, match="not a LeRobot dataset|info.json"):
         copy_dataset(DatasetCopyConfig(source=str(tmp_path / "nowhere"), dest=str(tmp_path / "c2")))
+
+
+def test_the_next_models_recipe_collects_4080_and_trains_systems_2_and_3_on_the_minilm(tmp_path, capsys):
+    register_all()
+    recipe = load_recipe(RECIPE.parent / "trivla_next.yaml")
+    stages = {stage.name: stage for stage in recipe.stages}
+    collects = [stage for stage in recipe.stages if stage.kind == "collect"]
+    assert len({stage.config.out for stage in collects}) == 1  # one dataset, resumed stage after stage
+    assert collects[-1].config.episodes_per_task * 12 == 4080 and collects[-1].config.prelude_tasks == 4
+    for name in ("video", "vlm"):
+        assert stages[name].config.preset == "cpu_minilm"
+    # System 3 trains on the clean episodes only: the dataset grows after it.
+    names = list(stages)
+    assert names.index("clean1200") < names.index("video") < names.index("dart2400")
+    recipe.workdir = str(tmp_path / "run")
+    assert set(run_recipe(recipe, dry_run=True).values()) == {"pending"}
+    assert "--preset cpu_minilm" in capsys.readouterr().out and not (tmp_path / "run").exists()
