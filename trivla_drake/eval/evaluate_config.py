@@ -53,7 +53,8 @@ class EvalConfig:
     ray_address: Optional[str] = None
     # Torch threads of a serial run (each worker process uses 1, so TriVLA's results do not depend on workers).
     threads: int = 1
-    # Folder for report.json and eval_config.yaml (None: the report is only printed).
+    # Folder for report.json, eval_config.yaml and episodes.jsonl, every result as it comes (eval/evaluation_journal.py:
+    # a killed run resumes, a larger one reuses it); None: the report is only printed and nothing resumes.
     out: Optional[str] = None
     # Folder for one mp4 per episode / chain (None: no videos).
     record_dir: Optional[str] = None
