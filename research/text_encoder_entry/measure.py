@@ -3,7 +3,8 @@ paraphrase's task survive into what System 1 reads from that system: System 2's 
 middle-layer states) and System 3's F_p (the up-sampling features of both cameras)?
 
 For each of a few real scenes (the first frame of collected episodes, both cameras) and each model, the 36 training
-templates and the 36 held-out paraphrases are run through System 2 (Q_vl, mean over the instruction's positions) and
+templates and the 36 held-out paraphrases are run through System 2 (Q_vl, mean over the positions from the
+instruction's first token on: the instruction and the prompt's tail) and
 System 3 (F_p of both views flattened, one fixed noise draw, the mean over the 72 sentences taken off so that the
 scene cancels); a paraphrase is a hit when its nearest template by cosine belongs to its own task. The gap is the
 mean similarity to its own task's templates minus that to other tasks'. Hits are summed over the scenes.

@@ -10,7 +10,8 @@ from __future__ import annotations
 import functools
 import json
 import math
-from collections.abc import Iterable
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict
 from pathlib import Path
 
@@ -62,10 +63,7 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
 
     policy = _policy(*config.policy_key())
     kind, name, index, base_seed = job
-    video = None
-    if config.record_dir is not None:
-        stem = f"{name}-{index:03d}" if kind == "episode" else f"chain-{index:03d}"
-        video = Path(config.record_dir) / (f"{stem}.mp4" if base_seed == config.seed else f"{stem}-seed{base_seed}.mp4")
+    video = _video_path(config, job) if config.record_dir is not None else None
     if kind == "episode":
         seed = derive_seed(base_seed, name, index)
         for redraw in range(PRELUDE_REDRAWS + 1):
@@ -95,6 +93,13 @@ def _run_job(config: EvalConfig, job: tuple) -> dict:
     ).to_dict()
 
 
+def _video_path(config: EvalConfig, job: tuple) -> Path:
+    """Where a job's video goes in `config.record_dir`."""
+    kind, name, index, base_seed = job
+    stem = f"{name}-{index:03d}" if kind == "episode" else f"chain-{index:03d}"
+    return Path(config.record_dir) / (f"{stem}.mp4" if base_seed == config.seed else f"{stem}-seed{base_seed}.mp4")
+
+
 @functools.lru_cache(maxsize=1)
 def _benchmark_chains() -> tuple:
     """The fixed benchmark's chains, read once per process."""
@@ -113,37 +118,62 @@ def _describe_job(job: tuple) -> str:
     return f"{name} episode {index} (seed {base_seed})" if kind == "episode" else f"chain {index} (seed {base_seed})"
 
 
-def run_jobs(config: EvalConfig, jobs: Iterable[tuple], *, progress: bool, description: str,
-             journal=None) -> list[dict]:
-    """Results of `jobs` in order, run in this process
-    (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s cluster.
-    With a `journal` (eval/evaluation_journal.py), jobs it holds are not run again and each new result is stored
-    in it as it comes."""
+def run_jobs(config: EvalConfig, make_jobs: Callable[[], Iterable[tuple]], total: int, *, progress: bool,
+             description: str, journal=None) -> list[dict]:
+    """Results of the `total` jobs `make_jobs()` yields, in order, drawn as they run (never listed up front), run in
+    this process (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s
+    cluster. With a `journal` (eval/evaluation_journal.py), jobs it holds are not run again (unless their video is
+    asked for and missing) and each new result is stored in it as it comes."""
     from tqdm import tqdm
 
     from trivla_drake.eval.rollout_runner import RolloutRunner
 
-    jobs = list(jobs)  # at most MAX_EPISODES tuples per seed; walked twice
-    stored = {i: journal.result(job) for i, job in enumerate(jobs)} if journal is not None else {}
-    stored = {i: result for i, result in stored.items() if result is not None}
-    pending = [job for i, job in enumerate(jobs) if i not in stored]
-    bar = tqdm(total=len(jobs), initial=len(stored), desc=description, disable=not progress, unit="ep")
-    if stored and progress:
-        bar.write(f"{description}: {len(stored)} of {len(jobs)} results taken from {journal.path}")
-    fresh: list[dict] = []
+    def stored(job: tuple) -> dict | None:
+        result = journal.result(job) if journal is not None else None
+        if result is not None and config.record_dir is not None and not _video_path(config, job).exists():
+            return None  # its video is wanted: run it again (the same result)
+        return result
+
+    reused = sum(stored(job) is not None for job in make_jobs()) if journal is not None else 0
+    pending = total - reused
+    bar = tqdm(total=total, initial=reused, desc=description, disable=not progress, unit="ep")
+    if reused and progress:
+        bar.write(f"{description}: {reused} of {total} results taken from {journal.path}")
+    results: list[dict] = []
+    ready: dict[int, dict] = {}  # results (stored, or run) waiting for those of the jobs before them
+    running: deque = deque()  # (index, job) of the jobs sent to run, in order
+
+    def draw() -> Iterator[tuple]:
+        for index, job in enumerate(make_jobs()):
+            result = stored(job)
+            if result is None:
+                running.append((index, job))
+                yield job
+            else:
+                ready[index] = result
+
+    def take_ready() -> None:
+        while len(results) in ready:
+            results.append(ready.pop(len(results)))
+
     try:
-        workers = config.workers if len(pending) > 1 else 1
-        with RolloutRunner(workers, config.ray_address) as runner:
-            for job, result in zip(pending, runner.map_ordered(_run_job, config, pending, describe=_describe_job)):
-                result = json.loads(json.dumps(result))  # as a stored one reads back
-                if journal is not None:
-                    journal.append(job, result)
-                fresh.append(result)
-                bar.update(1)
+        if pending:
+            with RolloutRunner(config.workers if pending > 1 else 1, config.ray_address) as runner:
+                for result in runner.map_ordered(_run_job, config, draw(), describe=_describe_job):
+                    index, job = running.popleft()
+                    result = json.loads(json.dumps(result))  # as a stored one reads back
+                    if journal is not None:
+                        journal.append(job, result)
+                    ready[index] = result
+                    take_ready()
+                    bar.update(1)
+        else:
+            for _ in draw():
+                pass
+        take_ready()
     finally:
         bar.close()
-    fresh_results = iter(fresh)
-    return [stored[i] if i in stored else next(fresh_results) for i in range(len(jobs))]
+    return results
 
 
 def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> dict:
@@ -300,7 +330,7 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
     import torch
 
     threads = torch.get_num_threads()
-    torch.set_num_threads(config.threads)  # a serial run's; each worker process uses 1
+    torch.set_num_threads(config.rollout_threads())  # a serial run's threads; with Ray, each worker's 1
     try:
         report = _evaluate(config, progress)
     finally:
@@ -319,13 +349,16 @@ def _evaluate(config: EvalConfig, progress: bool) -> dict:
 
         journal = EvaluationJournal(config.out, journal_key(config))
     seeds = config.seed_list()
-    # For each seed, episode i of every task, then i + 1, ...
-    jobs = [("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks]
-    episodes = run_jobs(config, jobs, progress=progress, description=f"evaluate {config.policy}",
-                        journal=journal) if jobs else []
-    chain_jobs = [("chain", "chain", j, seed) for seed in seeds for j in range(config.chains)]
-    chains = (run_jobs(config, chain_jobs, progress=progress, description="chains", journal=journal)
-              if chain_jobs else [])
+    # Drawn as they run, never listed up front: for each seed, episode i of every task, then i + 1, ...
+    def episode_jobs():
+        return (("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks)
+
+    count = config.episodes * len(config.tasks) * len(seeds)
+    episodes = run_jobs(config, episode_jobs, count, progress=progress, description=f"evaluate {config.policy}",
+                        journal=journal) if count else []
+    chains = run_jobs(config, lambda: (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains)),
+                      config.chains * len(seeds), progress=progress, description="chains",
+                      journal=journal) if config.chains else []
     if config.seeds is None:
         return summarize(config, episodes, chains)
     return summarize_seeds(config, episodes, chains)

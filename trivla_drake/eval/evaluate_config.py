@@ -51,7 +51,8 @@ class EvalConfig:
     # An existing Ray cluster to run on (e.g. 'ray://head:10001' or 'auto'; None: $RAY_ADDRESS if set, else
     # local). The results are the same as a serial run's, whatever the cluster's size.
     ray_address: Optional[str] = None
-    # Torch threads of a serial run (each worker process uses 1, so TriVLA's results do not depend on workers).
+    # Torch threads of a serial run (each worker process uses 1, so TriVLA's results do not depend on workers:
+    # `rollout_threads`).
     threads: int = 1
     # Folder for report.json, eval_config.yaml and episodes.jsonl, every result as it comes (eval/evaluation_journal.py:
     # a killed run resumes, a larger one reuses it); None: the report is only printed and nothing resumes.
@@ -112,6 +113,13 @@ class EvalConfig:
         if any(wrapper.name == "home_first" for wrapper in self.policy_wrappers) and self.policy == "oracle":
             raise ValueError("policy_wrappers: home_first applies to learned policies, not to --policy oracle (it "
                              "plans from wherever the hand is)")
+
+    def rollout_threads(self) -> int:
+        """The torch threads each rollout runs with: `threads` in a serial run, 1 in a Ray worker (and in this
+        process when a Ray run has a single job left), so a run's results do not depend on its workers."""
+        from trivla_drake.eval.rollout_runner import resolve_address
+
+        return self.threads if self.workers == 1 and resolve_address(self.ray_address) is None else 1
 
     def seed_list(self) -> list[int]:
         """The base seeds this config runs, in order."""

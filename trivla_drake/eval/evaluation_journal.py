@@ -3,10 +3,12 @@ killed evaluation resumes where it stopped and a larger one reuses a smaller one
 `--chains 200` runs only chains 200-999).
 
 OUT/episodes.jsonl starts with a header line holding the journal's key: the settings that decide each job's result
-(the policy with the sha256 of its checkpoint's contents, paraphrases, chain source, preludes, inference, ...), not
-those that only decide which jobs run (tasks, episodes, chains, seeds) nor where they run (workers, Ray). Each
-further line is {"job": [kind, name, index, base seed], "result": {...}}. A job's result depends only on the key
-and the job (rollouts are byte-identical whatever the workers), so a stored one is the one a rerun would compute.
+(the policy with the sha256 of its checkpoint's contents, the torch threads a rollout runs with, every other EvalConfig
+field that differs from its default, the package version and the benchmark chains' sha256), not those that only
+decide which jobs run (tasks, episodes, chains, seeds) nor where they run (workers, Ray). Each further line is
+{"job": [kind, name, index, base seed], "result": {...}}. A job's result depends only on the key and the job
+(rollouts are byte-identical whatever the workers), so a stored one is the one a rerun of the same code would
+compute; a change of the code within one package version is not seen (give another --out after one).
 
 A journal of other settings is never overwritten: opening it raises ValueError naming the settings that differ. A
 line cut short by a kill is dropped (its job runs again) and the file is cut back to its last whole line.
@@ -24,6 +26,7 @@ from typing import Any
 JOURNAL_FILE = "episodes.jsonl"
 JOURNAL_VERSION = 1
 # EvalConfig fields that choose the jobs or where they run, not what a job gives.
+_ABSENT = object()
 NOT_IN_KEY = ("tasks", "episodes", "chains", "seed", "seeds", "workers", "ray_address", "out", "record_dir")
 
 
@@ -51,9 +54,17 @@ def policy_fingerprint(policy: str) -> str:
 
 
 def journal_key(config) -> dict[str, Any]:
-    """The settings of an EvalConfig that decide each job's result (JSON-ready)."""
-    key = {name: value for name, value in asdict(config).items() if name not in NOT_IN_KEY}
-    key["policy"] = policy_fingerprint(config.policy)
+    """The settings of an EvalConfig that decide each job's result (JSON-ready; see the module docstring). Fields at
+    their defaults are left out, so a field added to EvalConfig later leaves earlier journals valid."""
+    from trivla_drake import __version__
+    from trivla_drake.tasks.chain_benchmark import BENCHMARK_SHA256
+
+    defaults = asdict(type(config)())
+    key: dict[str, Any] = {"trivla_drake": __version__, "benchmark_sha256": BENCHMARK_SHA256,
+                           "policy": policy_fingerprint(config.policy), "threads": config.rollout_threads()}
+    for name, value in asdict(config).items():
+        if name not in NOT_IN_KEY and name not in key and value != defaults[name]:
+            key[name] = value
     return json.loads(json.dumps(key))
 
 
@@ -78,24 +89,30 @@ class EvaluationJournal:
     def _read(self) -> None:
         data = self.path.read_bytes()
         whole = data[: data.rfind(b"\n") + 1]  # what follows the last newline was cut short by a kill
-        lines = whole.decode().splitlines()
-        if not lines:  # killed while writing its header: nothing stored yet
+        lines = whole.decode(errors="replace").splitlines()
+        if not lines and (not data or data.startswith(b'{"journal"')):  # killed while writing its header
             self._write_line({"journal": JOURNAL_VERSION, "key": self.key}, mode="w")
             return
         try:
-            header = json.loads(lines[0])
+            header = json.loads(lines[0]) if lines else None
         except ValueError:
             header = None
-        if not isinstance(header, dict) or header.get("journal") != JOURNAL_VERSION or "key" not in header:
-            raise ValueError(f"{self.path} is not an evaluation journal this version writes (its first line is no "
-                             f"header): move it away, or give another --out")
+        if not isinstance(header, dict) or not isinstance(header.get("key"), dict):
+            raise ValueError(f"{self.path} is not an evaluation journal (its first line is no journal header): it is "
+                             "kept as it is; move it away, or give another out folder (--out)")
+        if header.get("journal") != JOURNAL_VERSION:
+            raise ValueError(f"{self.path} is a journal of version {header.get('journal')!r}; this code writes "
+                             f"version {JOURNAL_VERSION}: it is kept as it is; give another out folder (--out)")
         if header["key"] != self.key:
+            def shown(key: dict, name: str) -> str:
+                return repr(key[name]) if name in key else "the default"
+
             differ = sorted(name for name in set(header["key"]) | set(self.key)
-                            if header["key"].get(name) != self.key.get(name))
-            shown = "; ".join(f"{name}: {header['key'].get(name)!r} there, {self.key.get(name)!r} now"
-                              for name in differ)
-            raise ValueError(f"{self.path} holds the results of an evaluation with other settings ({shown}); it is "
-                             "kept as it is: give another --out, or the same settings to resume it")
+                            if header["key"].get(name, _ABSENT) != self.key.get(name, _ABSENT))
+            listed = "; ".join(f"{name}: {shown(header['key'], name)} there, {shown(self.key, name)} now"
+                               for name in differ)
+            raise ValueError(f"{self.path} holds the results of an evaluation with other settings ({listed}); it is "
+                             "kept as it is: give another out folder (--out), or the same settings to resume it")
         for number, line in enumerate(lines[1:], start=2):
             try:
                 entry = json.loads(line)

