@@ -30,6 +30,19 @@ def test_save_then_load_gives_identical_outputs(saved):
     assert llm.lm_head.weight.data_ptr() == llm.model.embed_tokens.weight.data_ptr()
 
 
+def test_the_weights_are_as_readable_as_the_config(saved):
+    model, directory = saved
+    modes = {name: os.stat(os.path.join(directory, name)).st_mode & 0o777 for name in os.listdir(directory)}
+    assert modes["model.safetensors"] == modes["config.json"]  # not safetensors' owner-only 0600
+    assert modes["model.safetensors"] & 0o044 == 0o644 & ~_umask() & 0o044
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def test_config_json_describes_the_model(saved):
     model, directory = saved
     with open(os.path.join(directory, "config.json")) as f:

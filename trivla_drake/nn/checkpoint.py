@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 from typing import Any
 
 import torch
@@ -106,6 +107,9 @@ def save_checkpoint(model: TriVLA, directory: str, *, weights_dtype: str = "floa
     save_file(weights, os.path.join(directory, WEIGHTS_FILE), metadata={"format": FORMAT})
     with open(os.path.join(directory, CONFIG_FILE), "w") as f:
         json.dump(meta, f, indent=2)
+    # safetensors creates its file readable by its owner alone (0600); the weights get the mode config.json has
+    # under the user's umask, so a model folder shared with a group or served is readable whole.
+    os.chmod(os.path.join(directory, WEIGHTS_FILE), stat.S_IMODE(os.stat(os.path.join(directory, CONFIG_FILE)).st_mode))
 
 
 def checkpoint_digest(directory: str | os.PathLike) -> str:
