@@ -109,12 +109,14 @@ def main() -> int:
     views = scenes(args.data, args.scenes)
     figures = {"scenes": args.scenes, "system2": [measure(c, 2, views) for c in args.system2],
                "system3": [measure(c, 3, views) for c in args.system3]}
-    print("| system | checkpoint | text encoder | paraphrases nearest their own task's template | similarity gap |")
+    print("| system | checkpoint | text encoder | paraphrases nearest their own task's template, per scene | "
+          "similarity gap |")
     print("| --- | --- | --- | --- | --- |")
     for system in ("system2", "system3"):
         for row in figures[system]:
+            hits = [scene["hits"] for scene in row["per_scene"]]
             print(f"| {system} | {row['checkpoint']} | {row['text_encoder'] or 'from scratch'} | "
-                  f"{row['hits']} / {row['of']} | {row['gap']:.3f} |")
+                  f"{', '.join(map(str, hits))} of {row['per_scene'][0]['of']} | {row['gap']:.3f} |")
     (Path(__file__).parent / "figures.json").write_text(json.dumps(figures, indent=2) + "\n")
     return 0
 
