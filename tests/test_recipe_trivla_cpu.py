@@ -67,7 +67,7 @@ def test_copy_dataset_copies_once_and_never_touches_an_existing_copy(tmp_path):
         copy_dataset(DatasetCopyConfig(source=str(tmp_path / "nowhere"), dest=str(tmp_path / "c2")))
 
 
-def test_the_next_models_recipe_collects_4080_and_trains_systems_2_and_3_on_the_minilm(tmp_path, capsys):
+def test_the_next_models_recipe_collects_4080_and_trains_on_the_minilm(tmp_path, capsys):
     register_all()
     recipe = load_recipe(RECIPE.parent / "trivla_next.yaml")
     stages = {stage.name: stage for stage in recipe.stages}
@@ -79,6 +79,14 @@ def test_the_next_models_recipe_collects_4080_and_trains_systems_2_and_3_on_the_
     # System 3 trains on the clean episodes only: the dataset grows after it.
     names = list(stages)
     assert names.index("clean1200") < names.index("video") < names.index("dart2400")
+    # System 1 reads System 3 from `video` and System 2 from `vlm`, all stages on one feature cache setting.
+    joint = stages["joint"].config
+    assert joint.init == stages["video"].config.out + "/final"
+    assert joint.policy.system2_from == stages["vlm"].config.out + "/final"
+    assert {stage.config.features.stride for stage in recipe.stages if stage.kind == "train" and
+            stage.config.stage == "policy"} == {6}
+    evaluations = [stage for stage in recipe.stages if stage.kind == "evaluate"]
+    assert evaluations and all(stage.config.out for stage in evaluations)  # each resumable (its journal)
     recipe.workdir = str(tmp_path / "run")
     assert set(run_recipe(recipe, dry_run=True).values()) == {"pending"}
     assert "--preset cpu_minilm" in capsys.readouterr().out and not (tmp_path / "run").exists()
