@@ -22,18 +22,9 @@ from trivla_drake.eval.rollout_runner import MAX_RETRIES, RolloutError, RolloutR
 def local_ray():
     """One local Ray with 2 worker CPUs for this file's tests (each runner then joins it instead of starting one)."""
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the jobs below live in this test file
-    with pytest.MonkeyPatch.context() as patch:  # as `trivla-drake --text-encoder FOLDER` sets it
-        patch.setenv(rollout_runner.FORWARDED_ENV[0], TEXT_ENCODER_FOLDER)
-        rollout_runner.start_local_ray(2)
+    rollout_runner.start_local_ray(2)
     yield
     ray.shutdown()
-
-
-TEXT_ENCODER_FOLDER = "/models/all-MiniLM-L6-v2"
-
-
-def _worker_env(config, job):
-    return os.getpid(), os.environ.get(rollout_runner.FORWARDED_ENV[0])
 
 
 def _slower_first(config, job):
@@ -67,11 +58,24 @@ def test_results_come_in_job_order_from_two_workers(local_ray):
     assert len({pid for _, _, pid in results}) == 2 and os.getpid() not in {pid for _, _, pid in results}
 
 
-def test_workers_get_the_text_encoder_the_driver_was_given(local_ray):
-    with RolloutRunner(workers=2) as runner:
-        found = list(runner.map_ordered(_worker_env, None, range(4)))
-    assert {folder for _, folder in found} == {TEXT_ENCODER_FOLDER}
-    assert all(pid != os.getpid() for pid, _ in found)
+def test_workers_get_the_text_encoder_the_driver_was_given(monkeypatch):
+    """`trivla-drake --text-encoder FOLDER` reaches the workers through Ray's runtime_env, local or on a cluster (a
+    local raylet would inherit the driver's environment anyway; a cluster's would not)."""
+    calls = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", lambda **kwargs: calls.append(kwargs))
+    monkeypatch.setattr(ray, "remote", lambda **kwargs: (lambda function: function))
+    monkeypatch.setattr(ray, "shutdown", lambda: None)
+    monkeypatch.setenv("TRIVLA_DRAKE_TEXT_ENCODER", "/models/all-MiniLM-L6-v2")
+    for runner in (RolloutRunner(workers=2), RolloutRunner(address="ray://head:10001")):
+        with runner:
+            pass
+    assert [call["runtime_env"]["env_vars"]["TRIVLA_DRAKE_TEXT_ENCODER"] for call in calls] == [
+        "/models/all-MiniLM-L6-v2"] * 2
+    monkeypatch.delenv("TRIVLA_DRAKE_TEXT_ENCODER")
+    with RolloutRunner(address="ray://head:10001"):
+        pass
+    assert calls[-1]["runtime_env"] is None
 
 
 def test_jobs_are_drawn_a_few_ahead_not_all_up_front(local_ray):

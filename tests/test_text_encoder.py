@@ -398,6 +398,9 @@ def test_trivla_drake_text_encoder_points_a_checkpoint_at_a_folder_elsewhere(min
     with pytest.raises(te.TextEncoderNotFoundError, match="--text-encoder FOLDER"):
         load_checkpoint(str(tmp_path / "ckpt"))
     monkeypatch.setenv(te.OVERRIDE_ENV, "")  # registered, so the flag's setting is undone after the test
+    from trivla_drake.eval.rollout_runner import FORWARDED_ENV
+
+    assert te.OVERRIDE_ENV in FORWARDED_ENV  # what the flag sets reaches Ray's workers
     assert main(["--text-encoder", str(folder), "export", str(tmp_path / "ckpt"), "--out", str(tmp_path / "out")]) == 0
     assert os.environ[te.OVERRIDE_ENV] == str(folder)
     assert load_checkpoint(str(tmp_path / "out")).text_encoder.content_hash == minilm.content_hash

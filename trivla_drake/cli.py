@@ -302,12 +302,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.text_encoder.strip():
             print("trivla-drake: error: --text-encoder is empty: give a folder or 'all-minilm-l6-v2'", file=sys.stderr)
             return 2
+        from trivla_drake.nn.text_encoder import OVERRIDE_ENV, PACKAGE_SPEC
+
         # Read by load_checkpoint in this process and, forwarded, in every rollout worker (eval/rollout_runner.py),
-        # whose working folder may be another: a path is made absolute ("all-minilm-l6-v2" is the pip package's).
+        # whose working folder may be another: a path is made absolute (PACKAGE_SPEC names the pip package's).
         spec = args.text_encoder
-        if spec != "all-minilm-l6-v2":
-            spec = os.path.abspath(os.path.expanduser(spec))
-        os.environ["TRIVLA_DRAKE_TEXT_ENCODER"] = spec
+        os.environ[OVERRIDE_ENV] = spec if spec == PACKAGE_SPEC else os.path.abspath(os.path.expanduser(spec))
     try:
         return args.run(args)
     except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors
