@@ -72,8 +72,15 @@ def test_the_next_models_recipe_collects_4080_and_trains_on_the_minilm(tmp_path,
     recipe = load_recipe(RECIPE.parent / "trivla_next.yaml")
     stages = {stage.name: stage for stage in recipe.stages}
     collects = [stage for stage in recipe.stages if stage.kind == "collect"]
-    assert len({stage.config.out for stage in collects}) == 1  # one dataset, resumed stage after stage
-    assert collects[-1].config.episodes_per_task * 12 == 4080 and collects[-1].config.prelude_tasks == 4
+    # two datasets, each resumed stage after stage: all demonstrations, and 10% of them in the same mix (Table 1)
+    full = [stage for stage in collects if stage.config.out == stages["joint"].config.data]
+    tenth = [stage for stage in collects if stage.config.out == stages["data10_joint"].config.data]
+    assert len(full) + len(tenth) == len(collects) and len(full) == len(tenth) == 3
+    assert full[-1].config.episodes_per_task * 12 == 4080 and full[-1].config.prelude_tasks == 4
+    for whole, part in zip(full, tenth):  # the same mix: clean, DART, chain preludes
+        assert (whole.config.perturbation, whole.config.prelude_tasks) == (part.config.perturbation,
+                                                                           part.config.prelude_tasks)
+        assert 10 * part.config.episodes_per_task == whole.config.episodes_per_task
     for name in ("video", "vlm"):
         assert stages[name].config.preset == "cpu_minilm"
     # System 3 trains on the clean episodes only: the dataset grows after it.
@@ -85,6 +92,14 @@ def test_the_next_models_recipe_collects_4080_and_trains_on_the_minilm(tmp_path,
     assert joint.policy.system2_from == stages["vlm"].config.out + "/final"
     assert {stage.config.features.stride for stage in recipe.stages if stage.kind == "train" and
             stage.config.stage == "policy"} == {6}
+    # the tables compare the exported model with its arms, each arm trained on from the model's own System 1
+    tables = stages["tables"].config.checkpoints
+    assert tables["full"] == stages["follow_export"].config.out
+    for role, arm in (("system1", "arm_s1"), ("system1_3", "arm_s13")):
+        assert tables[role] == stages[arm + "_export"].config.out
+        assert stages[arm].config.init == stages["follow"].config.out + "/final"
+        assert not stages[arm].config.use_system2 and stages[arm].config.use_system3 == (role == "system1_3")
+    assert tables["data10"] == stages["data10_export"].config.out
     evaluations = [stage for stage in recipe.stages if stage.kind == "evaluate"]
     assert evaluations and all(stage.config.out for stage in evaluations)  # each resumable (its journal)
     recipe.workdir = str(tmp_path / "run")
