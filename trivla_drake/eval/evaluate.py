@@ -119,7 +119,7 @@ def _describe_job(job: tuple) -> str:
 
 
 def run_jobs(config: EvalConfig, make_jobs: Callable[[], Iterable[tuple]], total: int, *, progress: bool,
-             description: str, journal=None) -> list[dict]:
+             description: str, journal=None, unit: str = "episode") -> list[dict]:
     """Results of the `total` jobs `make_jobs()` yields, in order, drawn as they run (never listed up front), run in
     this process (`config.workers` 1), on a local Ray with `config.workers` processes, or on `config.ray_address`'s
     cluster. With a `journal` (eval/evaluation_journal.py), jobs it holds are not run again (unless their video is
@@ -136,7 +136,7 @@ def run_jobs(config: EvalConfig, make_jobs: Callable[[], Iterable[tuple]], total
 
     reused = sum(stored(job) is not None for job in make_jobs()) if journal is not None else 0
     pending = total - reused
-    bar = tqdm(total=total, initial=reused, desc=description, disable=not progress, unit="ep")
+    bar = tqdm(total=total, initial=reused, desc=description, disable=not progress, unit=unit)
     if reused and progress:
         bar.write(f"{description}: {reused} of {total} results taken from {journal.path}")
     results: list[dict] = []
@@ -358,7 +358,7 @@ def _evaluate(config: EvalConfig, progress: bool) -> dict:
                         journal=journal) if count else []
     chains = run_jobs(config, lambda: (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains)),
                       config.chains * len(seeds), progress=progress, description="chains",
-                      journal=journal) if config.chains else []
+                      journal=journal, unit="chain") if config.chains else []
     if config.seeds is None:
         return summarize(config, episodes, chains)
     return summarize_seeds(config, episodes, chains)
