@@ -176,7 +176,8 @@ def add_evaluate_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument("--paraphrases", action="store_true", default=None,
                         help="use held-out instruction paraphrases")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="also write the report as DIR/report.json and the config as DIR/eval_config.yaml; "
+                        help="also write the report as DIR/report.json, DIR/report.md and its plot DIR/report.png, and the "
+                             "config as DIR/eval_config.yaml; "
                              "each result is kept in DIR/episodes.jsonl as it comes, so a killed run resumes and a "
                              "larger one (more chains, seeds, tasks) runs only what is missing")
     add_config_arguments(parser)

@@ -221,14 +221,20 @@ def report_config(config: EvalConfig) -> dict:
 
 
 def write_report(config: EvalConfig, report: dict) -> dict[str, Path]:
-    """Writes `report` as OUT/report.json and `config` as OUT/eval_config.yaml (OUT = `config.out`); their paths."""
+    """Writes `report` as OUT/report.json, OUT/report.md (what the command prints) and OUT/report.png (its figure,
+    eval/report_plot.py), and `config` as OUT/eval_config.yaml (OUT = `config.out`); their paths."""
     from trivla_drake.config_io import save_config
     from trivla_drake.data.durable import atomic_write_text
+    from trivla_drake.eval.report_plot import plot_evaluation
 
     out = Path(config.out)
-    files = {"config": out / CONFIG_FILE, "json": out / REPORT_FILE}
+    files = {"config": out / CONFIG_FILE, "json": out / REPORT_FILE, "markdown": out / "report.md"}
     save_config(config, files["config"])
     atomic_write_text(files["json"], json.dumps(report, indent=2) + "\n")
+    atomic_write_text(files["markdown"], format_markdown(report) + "\n")
+    plot = plot_evaluation(report, out / "report.png")
+    if plot is not None:
+        files["plot"] = plot
     return files
 
 

@@ -54,8 +54,8 @@ class EvalConfig:
     # Torch threads of a serial run (each worker process uses 1, so TriVLA's results do not depend on workers:
     # `rollout_threads`).
     threads: int = 1
-    # Folder for report.json, eval_config.yaml and episodes.jsonl, every result as it comes (eval/evaluation_journal.py:
-    # a killed run resumes, a larger one reuses it); None: the report is only printed and nothing resumes.
+    # Folder for report.json, report.md, report.png (eval/report_plot.py), eval_config.yaml and episodes.jsonl, every
+    # result as it comes (eval/evaluation_journal.py: a killed run resumes, a larger one reuses it); None: the report is only printed and nothing resumes.
     out: Optional[str] = None
     # Folder for one mp4 per episode / chain (None: no videos).
     record_dir: Optional[str] = None
