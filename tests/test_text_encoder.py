@@ -230,6 +230,25 @@ def test_a_failed_extraction_leaves_nothing_and_a_concurrent_one_wins(tmp_path, 
     assert (folder / te.HASH_FILE).is_file() and [p.name for p in cache.iterdir()] == [folder.name]
 
 
+def test_a_rival_that_finishes_before_this_one_starts_extracting_is_never_moved_aside(tmp_path, monkeypatch):
+    source = _small_zip(tmp_path / "model.zip")
+    cache = tmp_path / "cache"
+    real_cleanup = te._remove_stale_temp_folders
+    rival = {}
+
+    def rival_finishes_meanwhile(final):  # between this one's first look and its own extraction
+        real_cleanup(final)
+        if not rival:
+            rival["started"] = True
+            rival["folder"] = te.extract_once(source, cache)
+            (rival["folder"] / "loaded-by-the-rival").write_text("in use")  # it is reading from this very folder
+
+    monkeypatch.setattr(te, "_remove_stale_temp_folders", rival_finishes_meanwhile)
+    folder = te.extract_once(source, cache)
+    assert folder == rival["folder"] and (folder / "loaded-by-the-rival").is_file()  # the rival's, kept
+    assert [p.name for p in cache.iterdir()] == [folder.name]
+
+
 def test_a_missing_package_or_folder_names_what_to_install_or_pass(tmp_path, monkeypatch):
     with pytest.raises(te.TextEncoderNotFoundError, match="a folder holding config.json, model.safetensors"):
         te.load_text_encoder(str(tmp_path / "nowhere"))

@@ -185,6 +185,8 @@ def extract_once(zip_path: str | os.PathLike, cache_dir: str | os.PathLike | Non
         return final
     root.mkdir(parents=True, exist_ok=True)
     _remove_stale_temp_folders(final)
+    if (final / HASH_FILE).is_file():  # a concurrent extraction finished meanwhile: never move a whole folder aside
+        return final
     if final.exists():  # a folder under the final name but without the hash file: not ours, or broken by hand
         aside = Path(tempfile.mkdtemp(prefix=f".{final.name}.broken-", dir=root))
         try:
