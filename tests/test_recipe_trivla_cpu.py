@@ -102,6 +102,12 @@ def test_the_next_models_recipe_collects_4080_and_trains_on_the_minilm(tmp_path,
     assert tables["data10"] == stages["data10_export"].config.out
     evaluations = [stage for stage in recipe.stages if stage.kind == "evaluate"]
     assert evaluations and all(stage.config.out for stage in evaluations)  # each resumable (its journal)
+    # every stage's settings pass their own checks now, not hours into the run (tables need their checkpoints)
+    for stage in recipe.stages:
+        if stage.kind == "train":
+            stage.config.resolved().validate()
+        elif stage.kind in ("collect", "evaluate"):
+            stage.config.validate()
     recipe.workdir = str(tmp_path / "run")
     assert set(run_recipe(recipe, dry_run=True).values()) == {"pending"}
     assert "--preset cpu_minilm" in capsys.readouterr().out and not (tmp_path / "run").exists()
