@@ -53,3 +53,31 @@ def test_a_checkpoint_that_is_not_one_says_what_it_is(capsys, tmp_path):
 def test_tables_name_the_checkpoint_flag(capsys, tmp_path):
     err = _error(capsys, "tables", "--full", str(tmp_path / "nope"), "--out", str(tmp_path / "t"))
     assert f"--full {tmp_path / 'nope'} is not a checkpoint directory" in err
+
+
+def test_a_rollout_that_fails_on_its_workers_is_one_error_line_saying_what_is_kept(capsys, monkeypatch):
+    from trivla_drake.eval import cli_commands
+    from trivla_drake.eval.rollout_runner import RolloutError
+
+    def dies(args):
+        raise RolloutError("chain 17 (seed 1000): its worker died 3 times (out of memory?)")
+
+    monkeypatch.setattr(cli_commands, "run_evaluate", dies)
+    assert main(["evaluate", "--chains", "20", "--episodes", "0", "--workers", "2"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trivla-drake evaluate: error: chain 17 (seed 1000): its worker died 3 times")
+    assert "rerun the command to go on" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("flag", ["--workers=0", "--workers=-1"])
+def test_workers_below_one_are_refused_by_name(capsys, flag):
+    assert "--workers must be an integer >= 1" in _error(capsys, "evaluate", "--episodes", "1", flag)
+
+
+def test_a_workers_setting_of_true_is_refused_not_read_as_one():
+    from trivla_drake.eval.collect_config import CollectConfig
+    from trivla_drake.eval.evaluate_config import EvalConfig
+
+    for config in (EvalConfig(workers=True), CollectConfig(out="x", workers=True)):
+        with pytest.raises(ValueError, match="--workers must be an integer >= 1, got True"):
+            config.validate()

@@ -313,6 +313,16 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as error:  # ScenarioError, UnknownTaskError, ... are ValueErrors
         print(f"trivla-drake {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except RuntimeError as error:
+        from trivla_drake.eval.rollout_runner import RolloutError
+
+        if not isinstance(error, RolloutError):
+            raise
+        # A rollout job failed on a worker, or its worker died every time: what finished is kept (collect's dataset,
+        # evaluate --out's journal), so a rerun goes on from there.
+        print(f"trivla-drake {args.command}: error: {error}\n(finished episodes are kept where the command stores "
+              f"them: a dataset, or evaluate --out's journal; rerun the command to go on)", file=sys.stderr)
+        return 1
     except ModuleNotFoundError as error:
         # Parsing and `bench --model`, `train`, `export` need only torch; the simulation commands need Drake.
         if error.name != "pydrake" and not (error.name or "").startswith("pydrake."):

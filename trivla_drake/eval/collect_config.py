@@ -52,8 +52,8 @@ class CollectConfig:
         if not self.out:
             raise ValueError("--out is missing: the dataset folder to write (or resume)")
         check_episode_count(self.episodes_per_task, "--episodes-per-task")
-        if self.workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {self.workers}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"--workers must be an integer >= 1, got {self.workers!r}")
         if self.image_size < 16 or self.image_size % 2:
             raise ValueError(f"image_size must be an even number >= 16, got {self.image_size}")
         if not self.tasks:

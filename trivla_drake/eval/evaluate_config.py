@@ -97,8 +97,8 @@ class EvalConfig:
                 raise ValueError(f"--chains must be at most {BENCHMARK_CHAINS} (the fixed benchmark's chains), got "
                                  f"{self.chains}; more chains: --seeds (the same chains with other policy noise) or "
                                  "--set chain_source=drawn")
-        if self.workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {self.workers}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"--workers must be an integer >= 1, got {self.workers!r}")
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
             raise ValueError(f"threads must be at least 1, got {self.threads!r}")
         if isinstance(self.prelude, bool) or not isinstance(self.prelude, int) or not 0 <= self.prelude < CHAIN_LENGTH:

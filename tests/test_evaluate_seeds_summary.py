@@ -1,0 +1,31 @@
+"""`evaluate --seeds` over benchmark chains: every seed runs the same chains, so the pooled Avg. Len's standard error is
+taken over the chains (each averaged over its seeds), not over chains x seeds as if they were independent."""
+
+import math
+
+from trivla_drake.eval.evaluate import EvalConfig, summarize_seeds
+
+
+def _chains(completed):
+    return [{"seed": 7, "completed": c, "reason": "" if c == 5 else "timeout", "subtasks": [{"task": "lift_block"}]}
+            for c in completed]
+
+
+def test_pooled_chain_stderr_is_over_the_chains_when_seeds_repeat_them():
+    per_seed = [0, 1, 2, 3, 4, 5]  # the same outcomes on both seeds: a second seed adds no information
+    config = EvalConfig(episodes=0, chains=len(per_seed), seeds=[1000, 1001])
+    report = summarize_seeds(config, [], _chains(per_seed + per_seed))
+    mean = sum(per_seed) / len(per_seed)
+    over_chains = math.sqrt(sum((c - mean) ** 2 for c in per_seed) / (len(per_seed) - 1) / len(per_seed))
+    assert report["chain_avg_len"] == mean
+    assert math.isclose(report["chain_avg_len_stderr"], over_chains)  # not over_chains / sqrt(2)
+    assert report["chains"]["stderr_over"].startswith("benchmark chains")
+
+
+def test_drawn_chains_of_other_seeds_stay_independent():
+    config = EvalConfig(episodes=0, chains=3, seeds=[1000, 1001], chain_source="drawn")
+    completed = [0, 2, 4, 1, 3, 5]
+    report = summarize_seeds(config, [], _chains(completed))
+    mean = sum(completed) / 6
+    pooled = math.sqrt(sum((c - mean) ** 2 for c in completed) / 5 / 6)
+    assert math.isclose(report["chain_avg_len_stderr"], pooled) and "stderr_over" not in report["chains"]
