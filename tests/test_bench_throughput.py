@@ -48,3 +48,17 @@ def test_bench_takes_one_benchmark_at_a_time(capsys):
 
     assert main(["bench", "--model", "--throughput"]) == 2
     assert "--model and --throughput are two different benchmarks" in capsys.readouterr().err
+
+
+def test_bench_throughput_json_carries_the_prelude_figure(capsys):
+    import json
+
+    from trivla_drake.cli import main
+
+    assert main(["bench", "--throughput", "--json", "--set", "pipeline.workers=[1]", "--set",
+                 "pipeline.measure=[collect_prelude]", "--set", "pipeline.tasks=[turn_off_light]", "--set",
+                 "pipeline.collect_episodes_per_task=1"]) == 0
+    figures = json.loads(capsys.readouterr().out)  # one JSON object, no progress bar on stdout
+    prelude = figures["collect_prelude"]["1"]
+    assert prelude["demonstrations"] == 1 and prelude["per_minute"] == pytest.approx(60 / prelude["seconds"])
+    assert figures["workers"] == [1] and "collect" not in figures
