@@ -165,3 +165,28 @@ def test_collect_on_two_ray_workers_writes_the_serial_dataset_and_resumes(local_
     assert _dataset_files(a) == _dataset_files(b)
     different = [name for name in _dataset_files(a) if not filecmp.cmp(a / name, b / name, shallow=False)]
     assert set(different) <= _RUN_SETTINGS, different
+
+
+def test_a_command_starts_its_own_local_ray_and_stops_it_but_leaves_a_callers_running():
+    """In a fresh process (no Ray of this file's): the runner starts a local Ray of 2 workers and shuts it down on
+    exit; inside a Ray the caller started, it joins it and leaves it running."""
+    import subprocess
+
+    script = """
+import operator, ray
+from trivla_drake.eval.rollout_runner import RolloutRunner
+assert not ray.is_initialized()
+with RolloutRunner(2) as runner:
+    assert ray.is_initialized() and int(ray.cluster_resources()["CPU"]) == 2
+    assert list(runner.map_ordered(operator.add, 10, range(4))) == [10, 11, 12, 13]
+assert not ray.is_initialized(), "the runner's own Ray is still running"
+ray.init(num_cpus=2, include_dashboard=False)
+with RolloutRunner(2) as runner:
+    assert list(runner.map_ordered(operator.mul, 3, range(3))) == [0, 3, 6]
+assert ray.is_initialized(), "the caller's Ray was stopped"
+ray.shutdown()
+print("ok")
+"""
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-3000:]
