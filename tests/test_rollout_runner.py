@@ -136,8 +136,7 @@ def test_evaluate_on_two_ray_workers_reports_what_a_serial_run_does(local_ray):
     serial = evaluate(config, progress=False)
     config.workers = 2
     parallel = evaluate(config, progress=False)
-    serial["config"].pop("workers"), parallel["config"].pop("workers")
-    assert json.dumps(serial) == json.dumps(parallel)
+    assert json.dumps(serial) == json.dumps(parallel)  # byte for byte: the report leaves out where it ran
     assert [row["seed"] for row in serial["per_seed"]] == [3, 4] and serial["tasks"]["push_block_left"]["episodes"] == 2
     assert serial["chains"]["count"] == 4
 

@@ -215,9 +215,15 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
     return report
 
 
+# Where a run is placed (its workers, its Ray cluster, its folder): never a result, so not in the report, which is then
+# byte-identical whoever runs it (eval_config.yaml beside it keeps them).
+PLACEMENT_FIELDS = ("workers", "ray_address", "out")
+
+
 def report_config(config: EvalConfig) -> dict:
-    """The "config" of `config`'s report: its fields but the tasks (the report's rows name them)."""
-    return {k: v for k, v in asdict(config).items() if k not in ("tasks",)}
+    """The "config" of `config`'s report: its fields but the tasks (the report's rows name them) and its placement
+    (PLACEMENT_FIELDS)."""
+    return {k: v for k, v in asdict(config).items() if k not in ("tasks", *PLACEMENT_FIELDS)}
 
 
 def write_report(config: EvalConfig, report: dict) -> dict[str, Path]:
@@ -247,11 +253,15 @@ def report_has_config(path: Path, expected: dict) -> bool:
     """True when the JSON report at `path` exists, reads, and its "config" is `expected` (as JSON reads it back)."""
     if not path.is_file():
         return False
+
+    def settled(config: dict) -> dict:  # placement never decides a result (reports before it was left out have it)
+        return {k: v for k, v in config.items() if k not in PLACEMENT_FIELDS}
+
     try:
-        stored = json.loads(path.read_text()).get("config")
+        stored = settled(json.loads(path.read_text()).get("config"))
     except (OSError, ValueError, AttributeError):
         return False
-    return stored == json.loads(json.dumps(expected))
+    return stored == json.loads(json.dumps(settled(expected)))
 
 
 def _rate_and_stderr(count: int, n: int) -> tuple[float, float]:
