@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from trivla_drake.eval.paper_tables import TablesConfig
+from trivla_drake.tasks.chain_benchmark import BENCHMARK_SHA256
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +85,8 @@ def test_a_rerun_reuses_stored_evaluations_of_unchanged_checkpoints(checkpoints,
                for s in demo_settings if s["kind"] == "demo") == 2
     main = next(p for p in stored if json.loads(p.read_text())["settings"] == {
         "kind": "evaluate", "tasks": ["turn_on_light"], "episodes": 1, "seed": 0, "chains": 1,
-        "paraphrases": False, "max_steps": 6, "chain_source": "benchmark"} and json.loads(p.read_text())["checkpoint"] == str(checkpoints["full"]))
+        "paraphrases": False, "max_steps": 6, "chain_source": "benchmark", "benchmark_sha256": BENCHMARK_SHA256}
+        and json.loads(p.read_text())["checkpoint"] == str(checkpoints["full"]))
     record = json.loads(main.read_text())
     record["result"]["tasks"]["turn_on_light"]["success_rate"] = 1.0  # marks the stored result
     main.write_text(json.dumps(record))

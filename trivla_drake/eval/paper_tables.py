@@ -94,7 +94,11 @@ def _over_seeds(config: TablesConfig, checkpoint: str, *, paraphrases: bool = Fa
                     "chains": chains, "paraphrases": paraphrases, "max_steps": config.max_steps}
         # Chains drawn from the seed keep the key of evaluations stored before the fixed benchmark existed.
         if chains and eval_config.chain_source != "drawn":
+            from trivla_drake.tasks.chain_benchmark import BENCHMARK_SHA256
+
+            # the benchmark's chains themselves: a regenerated benchmark never reads evaluations of the old one
             settings["chain_source"] = eval_config.chain_source
+            settings["benchmark_sha256"] = BENCHMARK_SHA256
         return _stored(config, checkpoint, settings, lambda: evaluate(eval_config, progress=False))
 
     reports = [one_seed(seed) for seed in config.seeds]
