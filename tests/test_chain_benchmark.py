@@ -19,6 +19,7 @@ from trivla_drake.tasks.chain_benchmark import (
     BENCHMARK_SHA256,
     BENCHMARK_SIZE,
     GENERATOR_VERSION,
+    TASK_CATEGORIES,
     BenchmarkChain,
     BenchmarkError,
     ChainSubtask,
@@ -34,6 +35,7 @@ from trivla_drake.tasks.chain_benchmark import (
 )
 from trivla_drake.tasks.oracle import OraclePolicy
 from trivla_drake.tasks.scene import BLOCK_COLORS, Layout, scene_from_spec
+from trivla_drake.tasks.suite import TASK_NAMES
 
 LAYOUT = Layout.default()
 
@@ -101,6 +103,17 @@ def _repeated_category(chains):
     return chain.index, _replaced(chain, 3, chain.subtasks[0]), r"task category .* more than once"
 
 
+def _opposite_of_an_earlier_task(chains):
+    """CALVIN's categories: closing the drawer a chain opened repeats the drawer's category."""
+    opposite = {"open_drawer": "close_drawer", "close_drawer": "open_drawer", "turn_on_light": "turn_off_light",
+                "turn_off_light": "turn_on_light", "push_block_left": "rotate_block_right"}
+    chain, first = next((c, p) for c in chains for p, s in enumerate(c.subtasks[:4]) if s.task in opposite)
+    later = ChainSubtask(opposite[chain.subtasks[first].task], (), 5)
+    if later.task.startswith(("push", "rotate")):
+        later = later._replace(params=chain.subtasks[first].params)
+    return chain.index, _replaced(chain, 4, later), r"task category \w+ more than once"
+
+
 def _infeasible_first_task(chains):
     def light_task(chain):  # the lamp task that cannot start in the chain's scene
         return "turn_on_light" if benchmark_scene(chain.scene_seed, LAYOUT).lamp_on else "turn_off_light"
@@ -146,7 +159,7 @@ def _repeated_scene_seed(chains):
     return 6, BenchmarkChain(6, chains[2].scene_seed, chains[6].subtasks), r"scene seed \d+ is also chain 2's"
 
 
-@pytest.mark.parametrize("breaker", [_repeated_category, _infeasible_first_task, _lift_followed_by_another_block,
+@pytest.mark.parametrize("breaker", [_repeated_category, _opposite_of_an_earlier_task, _infeasible_first_task, _lift_followed_by_another_block,
                                      _lift_last, _unknown_task, _misshapen_params, _four_subtasks,
                                      _repeated_scene_seed])
 def test_validation_refuses_a_broken_chain(chains, breaker):
@@ -171,6 +184,18 @@ def test_a_lift_is_offered_only_where_an_unused_follow_up_can_take_its_block():
     assert "lift_block" not in benchmark_options(scene, set(), last=True)
     assert "lift_block" not in benchmark_options(scene, {"place_in_bowl", "stack_block"}, last=False)
     assert not {"lift_block", "open_drawer"} & set(benchmark_options(scene, {"lift_block", "open_drawer"}, last=False))
+    # CALVIN's categories: after an open drawer, no closing; after a push, no rotation (nor the other push)
+    assert "close_drawer" not in benchmark_options(scene, {"open_drawer"}, last=False)
+    pushed = benchmark_options(scene, {"push_block_left"}, last=False)
+    assert not {"push_block_right", "rotate_block_left", "rotate_block_right"} & set(pushed) and pushed
+
+
+def test_every_task_has_a_category_and_the_shipped_chains_repeat_none(chains):
+    assert set(TASK_CATEGORIES) == set(TASK_NAMES)
+    assert len(set(TASK_CATEGORIES.values())) == 7  # lift, place, stack, unstack, block on the table, drawer, lamp
+    for chain in chains:
+        categories = [TASK_CATEGORIES[s.task] for s in chain.subtasks]
+        assert len(set(categories)) == len(categories), (chain.index, categories)
 
 
 def test_a_subtask_seed_gives_its_instruction_and_policy_seed():

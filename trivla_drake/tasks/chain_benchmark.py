@@ -5,8 +5,9 @@ tasks whoever evaluates it, on whichever worker.
 A chain stores its scene seed (its initial state is `benchmark_scene(scene_seed, layout)`) and its five subtasks in
 order: the task, its parameters, and a seed from which the subtask's instruction and the seed given to the policy's
 reset are drawn (`subtask_instance`). The generator drew every subtask in the state the scripted oracle left when the
-earlier ones succeeded (from `chain_options`, restricted to task names not yet in the chain) and kept a chain only when
-the oracle then completed all five; `validate_benchmark_chains` states the rules a chain list keeps.
+earlier ones succeeded (from `chain_options`, restricted to task categories not yet in the chain, CALVIN's grouping:
+`TASK_CATEGORIES`) and kept a chain only when the oracle then completed all five; `validate_benchmark_chains` states
+the rules a chain list keeps.
 
     chains = load_benchmark_chains(100)                       # the first 100, the file checked against BENCHMARK_SHA256
     run_chain(chain.scene_seed, policy, chain=chain)          # trivla_drake/eval/episode.py
@@ -39,15 +40,33 @@ from trivla_drake.tasks.suite import TASKS, TaskInstance
 BENCHMARK_SIZE = 1000
 # The generator's fixed seed (the issue that asked for the benchmark: 76).
 BENCHMARK_BASE_SEED = 76
-# Bumped whenever the generator would draw other chains from the same seed.
-GENERATOR_VERSION = 1
+# Bumped whenever the generator would draw other chains from the same seed (2: CALVIN's task categories, where 1
+# allowed each task name once, so that a chain could open the drawer and later close it).
+GENERATOR_VERSION = 2
 # sha256 of the shipped chains' canonical JSON (`chains_sha256`): a changed file is refused on load.
-BENCHMARK_SHA256 = "3b69a472f2db150bc64bb72543e35c02924d0ffc674a7354eff0cbb5ac7f4e37"
+BENCHMARK_SHA256 = "f9ee5997588333bb8898fa1fe15e4fa6eec63a9461adcacc157bbf94528fdcef"
 # sha256 of the shipped chains' initial scenes (`benchmark_scenes_sha256`): a scene sampler that draws other scenes
 # from the same seeds would start every chain elsewhere than where it was generated (a test compares).
-BENCHMARK_SCENES_SHA256 = "865facb6ef92691c6f742531f39b6b2b807281de628d14d9b684d3226798e15d"
+BENCHMARK_SCENES_SHA256 = "ff0583cf92e77b9b91ebd7e986933f20015229e10be0efc1ccaabf9a6673029b"
 BENCHMARK_FILE = Path(__file__).parent / "data" / "benchmark_chains.json"
 _LIFT = "lift_block"
+# A chain holds each task category at most once. CALVIN's grouping (calvin_models' multistep_sequences.py): a task and
+# its opposite are one category (the drawer opened or closed, the lamp on or off), and pushing and rotating a block on
+# the table are one, so a chain never undoes what it did and asks five different kinds of thing.
+TASK_CATEGORIES = {
+    "lift_block": "lift",
+    "place_in_bowl": "place",
+    "stack_block": "stack",
+    "unstack_block": "unstack",
+    "push_block_left": "block_on_table",
+    "push_block_right": "block_on_table",
+    "rotate_block_left": "block_on_table",
+    "rotate_block_right": "block_on_table",
+    "open_drawer": "drawer",
+    "close_drawer": "drawer",
+    "turn_on_light": "light",
+    "turn_off_light": "light",
+}
 
 
 class BenchmarkError(ValueError):
@@ -118,11 +137,15 @@ def param_count(task_name: str) -> int:
 
 
 def benchmark_options(scene: SceneState, used: set[str], *, last: bool) -> dict[str, list[tuple]]:
-    """The tasks the generator may draw next in `scene` (task name -> parameters): `chain_options` restricted to names
-    not in `used`; a lift only where a place or stack not yet used can follow it with that block, and never `last`."""
-    options = {name: params for name, params in chain_options(scene, used).items() if name not in used}
+    """The tasks the generator may draw next in `scene` (task name -> parameters): `chain_options` restricted to the
+    categories (`TASK_CATEGORIES`) of no task in `used`; a lift only where a place or stack of an unused category can
+    follow it with that block, and never `last`."""
+    taken = {TASK_CATEGORIES[name] for name in used}
+    options = {name: params for name, params in chain_options(scene, used).items()
+               if TASK_CATEGORIES[name] not in taken}
     if _LIFT in options:
-        follow = [name for name in NEEDS_FOLLOW_UP[_LIFT] if name not in used]
+        taken.add(TASK_CATEGORIES[_LIFT])
+        follow = [name for name in NEEDS_FOLLOW_UP[_LIFT] if TASK_CATEGORIES[name] not in taken]
         lifts = [] if last else [p for p in options[_LIFT]
                                  if any(TASKS[f].candidates(lifted_scene(scene, p[0])) for f in follow)]
         if lifts:
@@ -164,9 +187,10 @@ def _chain_problems(chain: BenchmarkChain) -> list[str]:
         if not 0 <= seed < 2**31:
             problems.append(f"{at}: seed {seed} is not in [0, 2**31)")
     names = [s.task for s in chain.subtasks]
-    repeated = sorted(name for name, n in Counter(names).items() if n > 1)
+    repeated = sorted(category for category, n in Counter(TASK_CATEGORIES.get(name) for name in names).items()
+                      if n > 1 and category is not None)
     if repeated:
-        problems.append(f"{where}: task category {', '.join(repeated)} more than once ({names})")
+        problems.append(f"{where}: task category {', '.join(repeated)} more than once ({names}; TASK_CATEGORIES)")
     for position, (task, params, _) in enumerate(chain.subtasks):
         if task != _LIFT:
             continue
@@ -187,8 +211,8 @@ def validate_benchmark_chains(chains: list[BenchmarkChain], *, count: int | None
 
     `count` chains (None: any number), chain i with index i, unique scene seeds; each chain has CHAIN_LENGTH
     subtasks of known tasks, each task's parameters shaped as its candidates (`param_count` different block
-    colours) and a seed in [0, 2**31); no task category twice in a chain (a category is a task name: rotating left
-    and rotating right are two); the first task can start in the initial scene (its parameters are among
+    colours) and a seed in [0, 2**31); no task category twice in a chain (`TASK_CATEGORIES`, CALVIN's: the drawer's
+    opening and closing are one, the lamp's on and off one, pushing and rotating a block one); the first task can start in the initial scene (its parameters are among
     `TASKS[task].candidates` of the scene drawn from the scene seed in the default scenario); a lift is followed
     by place_in_bowl or stack_block of the same block (so never last). The later tasks' feasibility depends on the
     physics: the generator checked it with the oracle."""
@@ -299,7 +323,7 @@ def _attempt(base_seed: int, candidate: int) -> dict:
         for position in range(CHAIN_LENGTH):
             options = benchmark_options(env.scene(), {s.task for s in subtasks}, last=position == CHAIN_LENGTH - 1)
             if not options:
-                return {"candidate": candidate, "discarded": f"no unused task can start: at subtask {position}"}
+                return {"candidate": candidate, "discarded": f"no task of an unused category can start: at subtask {position}"}
             names = sorted(options)
             name = names[int(rng.integers(len(names)))]
             params = tuple(options[name][int(rng.integers(len(options[name])))])
@@ -483,4 +507,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    # Run through the package's module, not this `__main__` copy, so that Ray workers find the jobs' functions by name.
+    from trivla_drake.tasks.chain_benchmark import main as package_main
+
+    package_main()
