@@ -145,3 +145,35 @@ def test_the_10_percent_arm_gets_its_column_row_and_bars(tmp_path):
     assert "10% of the demonstrations" not in format_tables(report)
     plot_tables(report, tmp_path)
     assert not np.array_equal(with_arm, matplotlib.image.imread(tmp_path / "per_task_success.png"))
+
+
+def test_tables_run_every_evaluation_inside_one_rollout_runner(monkeypatch):
+    """One local Ray for the whole command (each evaluation joins it), not one started and stopped per evaluation."""
+    from trivla_drake.eval import paper_tables, rollout_runner
+
+    state = {"open": 0, "entered": 0, "evaluations_outside": 0}
+
+    class Runner:
+        def __init__(self, workers, address):
+            assert (workers, address) == (2, None)
+
+        def __enter__(self):
+            state["open"] += 1
+            state["entered"] += 1
+
+        def __exit__(self, *exc):
+            state["open"] -= 1
+
+    def over_seeds(config, checkpoint, **kwargs):
+        state["evaluations_outside"] += state["open"] == 0
+        return {"average_success": 0.5, "chain_avg_len": 1.0, "chain_avg_len_stderr": 0.1, "tasks": {}}
+
+    monkeypatch.setattr(rollout_runner, "RolloutRunner", Runner)
+    monkeypatch.setattr(paper_tables, "_over_seeds", over_seeds)
+    monkeypatch.setattr(paper_tables, "_model_figures", lambda checkpoint: {"params_millions": 1.0, "latency_ms": 1.0})
+    monkeypatch.setattr(paper_tables, "_latency_rows", lambda config, checkpoint: {})
+    config = TablesConfig(checkpoints={"full": "a", "system1": "b", "data10": "c"}, workers=2)
+    monkeypatch.setattr(TablesConfig, "validate", lambda self: None)
+    report = paper_tables.make_tables(config)
+    assert state == {"open": 0, "entered": 1, "evaluations_outside": 0}
+    assert [row["systems"] for row in report["ablation"]] and report["data_efficiency"]["10%"] == 0.5

@@ -161,6 +161,15 @@ def _latency_rows(config: TablesConfig, checkpoint: str) -> dict:
 def make_tables(config: TablesConfig) -> dict:
     """Run every evaluation the checkpoints allow; returns the JSON-able report."""
     config.validate()
+    from trivla_drake.eval.rollout_runner import RolloutRunner
+
+    # One local Ray (or one connection to the cluster) for the whole command: each evaluation below joins it instead
+    # of starting and stopping its own, twice per checkpoint and seed.
+    with RolloutRunner(config.workers, config.ray_address):
+        return _all_tables(config)
+
+
+def _all_tables(config: TablesConfig) -> dict:
     ckpt = config.checkpoints
     report: dict = {"config": asdict(config)}
     report["main"] = _over_seeds(config, ckpt["full"], chains=config.chains)
