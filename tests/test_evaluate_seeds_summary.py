@@ -29,3 +29,35 @@ def test_drawn_chains_of_other_seeds_stay_independent():
     mean = sum(completed) / 6
     pooled = math.sqrt(sum((c - mean) ** 2 for c in completed) / 5 / 6)
     assert math.isclose(report["chain_avg_len_stderr"], pooled) and "stderr_over" not in report["chains"]
+
+
+def test_episodes_and_chains_to_run_share_one_runner(monkeypatch, tmp_path):
+    from trivla_drake.eval import evaluate as evaluate_module
+    from trivla_drake.eval import rollout_runner
+
+    state = {"open": 0, "entered": 0, "runs_inside": []}
+
+    class Runner:
+        def __init__(self, workers, address):
+            pass
+
+        def __enter__(self):
+            state["open"] += 1
+            state["entered"] += 1
+
+        def __exit__(self, *exc):
+            state["open"] -= 1
+
+    def run_jobs(config, make_jobs, total, **kwargs):
+        state["runs_inside"].append(state["open"] > 0)
+        return []
+
+    monkeypatch.setattr(rollout_runner, "RolloutRunner", Runner)
+    monkeypatch.setattr(evaluate_module, "run_jobs", run_jobs)
+    config = EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, chains=2, workers=2)
+    evaluate_module._evaluate(config, progress=False)
+    assert state == {"open": 0, "entered": 1, "runs_inside": [True, True]}
+
+    state.update(entered=0, runs_inside=[])
+    evaluate_module._evaluate(EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, workers=2), progress=False)
+    assert state["entered"] == 0  # episodes only: run_jobs starts (or skips) its own

@@ -7,6 +7,7 @@ so a run with `workers` processes gives exactly the results of a serial run with
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
@@ -358,6 +359,8 @@ def evaluate(config: EvalConfig, *, progress: bool = True) -> dict:
 
 def _evaluate(config: EvalConfig, progress: bool) -> dict:
     """`evaluate`'s runs and report, in this process's thread setting."""
+    from trivla_drake.eval.rollout_runner import RolloutRunner
+
     _policy(*config.policy_key())  # fail early (unknown policy, no checkpoint loader) before any work
     journal = None
     if config.out is not None:
@@ -369,12 +372,20 @@ def _evaluate(config: EvalConfig, progress: bool) -> dict:
     def episode_jobs():
         return (("episode", name, i, seed) for seed in seeds for i in range(config.episodes) for name in config.tasks)
 
+    def chain_jobs():
+        return (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains))
+
+    def pending(jobs) -> bool:
+        return journal is None or any(journal.result(job) is None for job in jobs)
+
     count = config.episodes * len(config.tasks) * len(seeds)
-    episodes = run_jobs(config, episode_jobs, count, progress=progress, description=f"evaluate {config.policy}",
-                        journal=journal) if count else []
-    chains = run_jobs(config, lambda: (("chain", "chain", j, seed) for seed in seeds for j in range(config.chains)),
-                      config.chains * len(seeds), progress=progress, description="chains",
-                      journal=journal, unit="chain") if config.chains else []
+    # Episodes and chains both to run: one Ray for both (each run_jobs joins it), not one started after the other.
+    both = bool(count and config.chains) and pending(episode_jobs()) and pending(chain_jobs())
+    with RolloutRunner(config.workers, config.ray_address) if both else contextlib.nullcontext():
+        episodes = run_jobs(config, episode_jobs, count, progress=progress, description=f"evaluate {config.policy}",
+                            journal=journal) if count else []
+        chains = run_jobs(config, chain_jobs, config.chains * len(seeds), progress=progress, description="chains",
+                          journal=journal, unit="chain") if config.chains else []
     if config.seeds is None:
         return summarize(config, episodes, chains)
     return summarize_seeds(config, episodes, chains)
