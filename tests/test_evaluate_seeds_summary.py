@@ -1,5 +1,6 @@
 """`evaluate --seeds` over benchmark chains: every seed runs the same chains, so the pooled Avg. Len's standard error is
-taken over the chains (each averaged over its seeds), not over chains x seeds as if they were independent."""
+taken over the chains (each averaged over its seeds), not over chains x seeds as if they were independent; and an
+evaluation with both episodes and chains to run starts one Ray for both."""
 
 import math
 
