@@ -57,16 +57,26 @@ def test_tables_name_the_checkpoint_flag(capsys, tmp_path):
 
 def test_a_rollout_that_fails_on_its_workers_is_one_error_line_saying_what_is_kept(capsys, monkeypatch):
     from trivla_drake.eval import cli_commands
-    from trivla_drake.eval.rollout_runner import RolloutError
+    from trivla_drake.eval.rollout_runner import RolloutError, WorkerDiedError
 
     def dies(args):
-        raise RolloutError("chain 17 (seed 1000): its worker died 3 times (out of memory?)")
+        raise WorkerDiedError("chain 17 (seed 1000): its worker died 3 times (out of memory?)")
 
     monkeypatch.setattr(cli_commands, "run_evaluate", dies)
     assert main(["evaluate", "--chains", "20", "--episodes", "0", "--workers", "2"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("trivla-drake evaluate: error: chain 17 (seed 1000): its worker died 3 times")
     assert "rerun the command to go on" in err and "Traceback" not in err
+
+    def raises(args):  # the job's own error: a rerun fails the same way; --verbose gives its traceback
+        raise RolloutError("chain 3 (seed 1000) failed on a worker: KeyError: 'q_vl'") from KeyError("q_vl")
+
+    monkeypatch.setattr(cli_commands, "run_evaluate", raises)
+    assert main(["evaluate", "--chains", "20", "--episodes", "0", "--workers", "2"]) == 1
+    err = capsys.readouterr().err
+    assert "KeyError: 'q_vl'" in err and "--verbose shows its traceback" in err and "rerun the command" not in err
+    with pytest.raises(RolloutError):
+        main(["-v", "evaluate", "--chains", "20", "--episodes", "0", "--workers", "2"])
 
 
 @pytest.mark.parametrize("flag", ["--workers=0", "--workers=-1"])

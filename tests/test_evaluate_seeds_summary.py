@@ -62,3 +62,15 @@ def test_episodes_and_chains_to_run_share_one_runner(monkeypatch, tmp_path):
     state.update(entered=0, runs_inside=[])
     evaluate_module._evaluate(EvalConfig(policy="oracle", tasks=["lift_block"], episodes=1, workers=2), progress=False)
     assert state["entered"] == 0  # episodes only: run_jobs starts (or skips) its own
+
+
+def test_one_benchmark_chain_over_seeds_keeps_the_pooled_stderr_and_lasting_follows():
+    config = EvalConfig(episodes=0, chains=1, seeds=[1000, 1001, 1002])
+    report = summarize_seeds(config, [], _chains([1, 3, 2]))
+    assert report["chain_avg_len_stderr"] > 0 and "stderr_over" not in report["chains"]  # not "± 0.00" from 1 chain
+
+    lasting = _chains([2, 4, 2, 4])
+    for chain, held in zip(lasting, [1, 3, 1, 3]):
+        chain["completed_lasting"] = held
+    report = summarize_seeds(EvalConfig(episodes=0, chains=2, seeds=[1000, 1001]), [], lasting)
+    assert report["chain_avg_len_stderr"] == report["chain_avg_len_lasting_stderr"] == 1.0  # both over the 2 chains

@@ -170,10 +170,18 @@ def test_tables_run_every_evaluation_inside_one_rollout_runner(monkeypatch):
 
     monkeypatch.setattr(rollout_runner, "RolloutRunner", Runner)
     monkeypatch.setattr(paper_tables, "_over_seeds", over_seeds)
-    monkeypatch.setattr(paper_tables, "_model_figures", lambda checkpoint: {"params_millions": 1.0, "latency_ms": 1.0})
-    monkeypatch.setattr(paper_tables, "_latency_rows", lambda config, checkpoint: {})
+    def timed(name):  # model latency and the Drake latency rows are timed with no Ray workers alive beside them
+        def figure(*args):
+            state.setdefault("timed_inside", []).append((name, state["open"] > 0))
+            return {"params_millions": 1.0, "latency_ms": 1.0} if name == "model" else {}
+        return figure
+
+    monkeypatch.setattr(paper_tables, "_model_figures", timed("model"))
+    monkeypatch.setattr(paper_tables, "_latency_rows", timed("latency"))
     config = TablesConfig(checkpoints={"full": "a", "system1": "b", "data10": "c"}, workers=2)
     monkeypatch.setattr(TablesConfig, "validate", lambda self: None)
     report = paper_tables.make_tables(config)
+    timed_inside = state.pop("timed_inside")
     assert state == {"open": 0, "entered": 1, "evaluations_outside": 0}
+    assert timed_inside == [("model", False), ("model", False), ("latency", False)]
     assert [row["systems"] for row in report["ablation"]] and report["data_efficiency"]["10%"] == 0.5

@@ -314,14 +314,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"trivla-drake {args.command}: error: {error}", file=sys.stderr)
         return 2
     except RuntimeError as error:
-        from trivla_drake.eval.rollout_runner import RolloutError
+        from trivla_drake.eval.rollout_runner import RolloutError, WorkerDiedError
 
-        if not isinstance(error, RolloutError):
-            raise
-        # A rollout job failed on a worker, or its worker died every time: what finished is kept (collect's dataset,
-        # evaluate --out's journal), so a rerun goes on from there.
+        if not isinstance(error, RolloutError) or args.verbose:
+            raise  # --verbose: the job's own traceback
+        # A rollout job raised on a worker, or its worker died every time: what finished is kept (collect's dataset,
+        # evaluate --out's journal), so a rerun goes on from there; a job's own error fails the same way again.
+        hint = ("rerun the command to go on" if isinstance(error, WorkerDiedError) else
+                "the job's own error fails the same way on a rerun: --verbose shows its traceback")
         print(f"trivla-drake {args.command}: error: {error}\n(finished episodes are kept where the command stores "
-              f"them: a dataset, or evaluate --out's journal; rerun the command to go on)", file=sys.stderr)
+              f"them: a dataset, or evaluate --out's journal; {hint})", file=sys.stderr)
         return 1
     except ModuleNotFoundError as error:
         # Parsing and `bench --model`, `train`, `export` need only torch; the simulation commands need Drake.

@@ -408,12 +408,17 @@ def summarize_seeds(config: EvalConfig, episodes: list[dict], chains: list[dict]
         per_seed.append({"seed": seed, "average_success": one["average_success"],
                          **({"chain_avg_len": one["chain_avg_len"]} if "chain_avg_len" in one else {})})
     report = summarize(config, episodes, chains)
-    if chains and config.chain_source == "benchmark" and len(seeds) > 1:
+    if chains and config.chain_source == "benchmark" and len(seeds) > 1 and config.chains > 1:
         # Every seed runs the same benchmark chains (other policy noise), so the pooled chains are not independent:
         # the standard error is over the chains, each chain's tasks done averaged over the seeds.
-        per_chain = [sum(chains[k * config.chains + j]["completed"] for k in range(len(seeds))) / len(seeds)
-                     for j in range(config.chains)]
-        report["chain_avg_len_stderr"] = _mean_and_stderr(per_chain)[1]
+        def over_chains(field: str) -> float:
+            per_chain = [sum(chains[k * config.chains + j][field] for k in range(len(seeds))) / len(seeds)
+                         for j in range(config.chains)]
+            return _mean_and_stderr(per_chain)[1]
+
+        report["chain_avg_len_stderr"] = over_chains("completed")
+        if "chain_avg_len_lasting_stderr" in report:
+            report["chain_avg_len_lasting_stderr"] = over_chains("completed_lasting")
         report["chains"]["stderr_over"] = "benchmark chains, each averaged over the seeds"
     report["seed"] = None
     report["seeds"] = seeds

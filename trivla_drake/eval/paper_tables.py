@@ -163,30 +163,29 @@ def make_tables(config: TablesConfig) -> dict:
     config.validate()
     from trivla_drake.eval.rollout_runner import RolloutRunner
 
-    # One local Ray (or one connection to the cluster) for the whole command: each evaluation below joins it instead
-    # of starting and stopping its own, twice per checkpoint and seed.
-    with RolloutRunner(config.workers, config.ray_address):
-        return _all_tables(config)
-
-
-def _all_tables(config: TablesConfig) -> dict:
     ckpt = config.checkpoints
+    # Timed first, with no Ray workers alive beside them: each model's size and inference latency.
+    figures = {role: _model_figures(ckpt[role]) for role, _ in ABLATION_ROWS if role in ckpt}
     report: dict = {"config": asdict(config)}
-    report["main"] = _over_seeds(config, ckpt["full"], chains=config.chains)
-    report["paraphrases"] = _over_seeds(config, ckpt["full"], paraphrases=True)
-    report["ablation"] = []
-    for role, label in ABLATION_ROWS:
-        if role not in ckpt:
-            continue
-        row = {"systems": label, **_model_figures(ckpt[role])}
-        row.update(_over_seeds(config, ckpt[role], chains=config.chains) if role != "full" else report["main"])
-        report["ablation"].append({k: row[k] for k in ("systems", "params_millions", "latency_ms", "average_success",
-                                                      "chain_avg_len", "chain_avg_len_stderr") if k in row})
-    if "data10" in ckpt:
-        report["data10"] = _over_seeds(config, ckpt["data10"])
-        report["data_efficiency"] = {"100%": report["main"]["average_success"],
-                                     "10%": report["data10"]["average_success"]}
-    report["latency"] = _latency_rows(config, ckpt["full"])
+    # One local Ray (or one connection to the cluster) for all the evaluations: each joins it instead of starting and
+    # stopping its own, twice per checkpoint and seed.
+    with RolloutRunner(config.workers, config.ray_address):
+        report["main"] = _over_seeds(config, ckpt["full"], chains=config.chains)
+        report["paraphrases"] = _over_seeds(config, ckpt["full"], paraphrases=True)
+        report["ablation"] = []
+        for role, label in ABLATION_ROWS:
+            if role not in ckpt:
+                continue
+            row = {"systems": label, **figures[role]}
+            row.update(_over_seeds(config, ckpt[role], chains=config.chains) if role != "full" else report["main"])
+            report["ablation"].append({k: row[k] for k in ("systems", "params_millions", "latency_ms",
+                                                          "average_success", "chain_avg_len", "chain_avg_len_stderr")
+                                       if k in row})
+        if "data10" in ckpt:
+            report["data10"] = _over_seeds(config, ckpt["data10"])
+            report["data_efficiency"] = {"100%": report["main"]["average_success"],
+                                         "10%": report["data10"]["average_success"]}
+    report["latency"] = _latency_rows(config, ckpt["full"])  # the Drake systems, timed after Ray has stopped
     return report
 
 

@@ -40,6 +40,10 @@ class RolloutError(RuntimeError):
     """A job failed on a worker (its exception, or its worker died more than MAX_RETRIES times)."""
 
 
+class WorkerDiedError(RolloutError):
+    """A job whose worker died more than MAX_RETRIES times (not the job's own exception: a rerun may get through)."""
+
+
 def setup_worker_process() -> None:
     """What every worker process does once before its first job: one torch thread (one process per core; threads would
     only fight over the cores, and results must not depend on the number of workers) and Drake's chatter off."""
@@ -176,7 +180,7 @@ class RolloutRunner:
                     raise RolloutError(f"{describe(job)} failed on a worker: {type(cause).__name__}: {cause}") from error
                 except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
                         ray.exceptions.RayError) as error:
-                    raise RolloutError(f"{describe(job)}: its worker died {MAX_RETRIES + 1} times "
+                    raise WorkerDiedError(f"{describe(job)}: its worker died {MAX_RETRIES + 1} times "
                                        f"({type(error).__name__}); nothing after it was committed") from error
                 submit(1)
                 yield result

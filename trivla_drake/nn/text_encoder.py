@@ -193,7 +193,14 @@ def extract_once(zip_path: str | os.PathLike, cache_dir: str | os.PathLike | Non
             os.rename(final, aside / final.name)
         except OSError:
             pass  # another process moved it first
+        if (aside / final.name / HASH_FILE).is_file():  # a rival finished just before the move: put it back, use it
+            try:
+                os.rename(aside / final.name, final)
+            except OSError:
+                pass
         shutil.rmtree(aside, ignore_errors=True)
+        if (final / HASH_FILE).is_file():
+            return final
     staging = Path(tempfile.mkdtemp(prefix=f"{_temp_prefix(final)}{socket.gethostname()}-{os.getpid()}-", dir=root))
     try:
         with zipfile.ZipFile(zip_path) as archive:
