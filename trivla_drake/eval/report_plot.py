@@ -9,14 +9,10 @@ number of chains behind it, so where a chain breaks is visible at a glance.
 from __future__ import annotations
 
 import io
-import math
 from pathlib import Path
 
 from trivla_drake.data.durable import atomic_write_bytes
-
-
-def _binomial_stderr(rate: float, n: int) -> float:
-    return math.sqrt(rate * (1 - rate) / n) if n else 0.0
+from trivla_drake.eval.evaluate import _rate_and_stderr
 
 
 def plot_evaluation(report: dict, out_path: str | Path) -> Path | None:
@@ -52,15 +48,16 @@ def plot_evaluation(report: dict, out_path: str | Path) -> Path | None:
         n = chains["count"]
         ks = range(1, len(chains["completed_at_least"]) + 1)
         at_least = chains["completed_at_least"]
-        ax.bar(ks, at_least, yerr=[_binomial_stderr(r, n) for r in at_least], capsize=3, color="C1", alpha=0.8,
+        ax.bar(ks, at_least, yerr=[_rate_and_stderr(round(r * n), n)[1] for r in at_least], capsize=3, color="C1", alpha=0.8,
                label="chains that completed at least k tasks")
         rows = chains.get("by_position", [])
-        tried = [(r["position"], r["succeeded"] / r["tried"], r["tried"]) for r in rows if r["tried"]]
+        tried = [(r["position"], *_rate_and_stderr(r["succeeded"], r["tried"]), r["tried"])
+                 for r in rows if r["tried"]]
         if tried:
-            xs, rates, counts = zip(*tried)
-            ax.errorbar(xs, rates, yerr=[_binomial_stderr(r, c) for r, c in zip(rates, counts)], color="C3",
+            xs, rates, errors, counts = zip(*tried)
+            ax.errorbar(xs, rates, yerr=errors, color="C3",
                         marker="o", capsize=3, label="success at position k, of the chains that reached it")
-            for x, rate, count in tried:
+            for x, rate, _, count in tried:
                 ax.annotate(f"{count}", (x, rate), textcoords="offset points", xytext=(6, 4), fontsize=7,
                             color="C3")
         ax.set_xticks(list(ks))

@@ -212,7 +212,8 @@ def validate_benchmark_chains(chains: list[BenchmarkChain], *, count: int | None
     `count` chains (None: any number), chain i with index i, unique scene seeds; each chain has CHAIN_LENGTH
     subtasks of known tasks, each task's parameters shaped as its candidates (`param_count` different block
     colours) and a seed in [0, 2**31); no task category twice in a chain (`TASK_CATEGORIES`, CALVIN's: the drawer's
-    opening and closing are one, the lamp's on and off one, pushing and rotating a block one); the first task can start in the initial scene (its parameters are among
+    opening and closing are one, the lamp's on and off one, pushing and rotating a block one); the first task can
+    start in the initial scene (its parameters are among
     `TASKS[task].candidates` of the scene drawn from the scene seed in the default scenario); a lift is followed
     by place_in_bowl or stack_block of the same block (so never last). The later tasks' feasibility depends on the
     physics: the generator checked it with the oracle."""
@@ -323,7 +324,8 @@ def _attempt(base_seed: int, candidate: int) -> dict:
         for position in range(CHAIN_LENGTH):
             options = benchmark_options(env.scene(), {s.task for s in subtasks}, last=position == CHAIN_LENGTH - 1)
             if not options:
-                return {"candidate": candidate, "discarded": f"no task of an unused category can start: at subtask {position}"}
+                return {"candidate": candidate,
+                        "discarded": f"no task of an unused category can start: at subtask {position}"}
             names = sorted(options)
             name = names[int(rng.integers(len(names)))]
             params = tuple(options[name][int(rng.integers(len(options[name])))])
