@@ -184,7 +184,7 @@ def summarize(config: EvalConfig, episodes: list[dict], chains: list[dict]) -> d
         mine = [e for e in episodes if e["task"] == name]
         n = len(mine)
         successes = sum(e["success"] for e in mine)
-        rate, stderr = _rate_and_stderr(successes, n)
+        rate, stderr = rate_and_stderr(successes, n)
         tasks[name] = {
             "success_rate": rate,
             "stderr": stderr,
@@ -265,7 +265,7 @@ def report_has_config(path: Path, expected: dict) -> bool:
     return stored == json.loads(json.dumps(settled(expected)))
 
 
-def _rate_and_stderr(count: int, n: int) -> tuple[float, float]:
+def rate_and_stderr(count: int, n: int) -> tuple[float, float]:
     """A success rate over n episodes and its binomial standard error (0, 0 for no episodes)."""
     rate = count / n if n else 0.0
     return rate, math.sqrt(rate * (1 - rate) / n) if n else 0.0
@@ -274,7 +274,7 @@ def _rate_and_stderr(count: int, n: int) -> tuple[float, float]:
 def _lasting_counts(episodes: list[dict]) -> dict:
     """A task row's hold-check figures: successes that still held after the hold, their rate and its standard error."""
     lasting = sum(bool(e.get("lasted")) for e in episodes)
-    rate, stderr = _rate_and_stderr(lasting, len(episodes))
+    rate, stderr = rate_and_stderr(lasting, len(episodes))
     return {"lasting_successes": lasting, "lasting_rate": rate, "lasting_stderr": stderr}
 
 

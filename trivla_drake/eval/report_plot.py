@@ -12,7 +12,7 @@ import io
 from pathlib import Path
 
 from trivla_drake.data.durable import atomic_write_bytes
-from trivla_drake.eval.evaluate import _rate_and_stderr
+from trivla_drake.eval.evaluate import rate_and_stderr
 
 
 def plot_evaluation(report: dict, out_path: str | Path) -> Path | None:
@@ -48,10 +48,10 @@ def plot_evaluation(report: dict, out_path: str | Path) -> Path | None:
         n = chains["count"]
         ks = range(1, len(chains["completed_at_least"]) + 1)
         at_least = chains["completed_at_least"]
-        ax.bar(ks, at_least, yerr=[_rate_and_stderr(round(r * n), n)[1] for r in at_least], capsize=3, color="C1",
+        ax.bar(ks, at_least, yerr=[rate_and_stderr(round(r * n), n)[1] for r in at_least], capsize=3, color="C1",
                alpha=0.8, label="chains that completed at least k tasks")
         rows = chains.get("by_position", [])
-        tried = [(r["position"], *_rate_and_stderr(r["succeeded"], r["tried"]), r["tried"])
+        tried = [(r["position"], *rate_and_stderr(r["succeeded"], r["tried"]), r["tried"])
                  for r in rows if r["tried"]]
         if tried:
             xs, rates, errors, counts = zip(*tried)
