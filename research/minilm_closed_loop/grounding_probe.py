@@ -90,19 +90,34 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(2)
     frames = first_frames(args.data, args.per_task)
-    report = {}
+    report, rows_of = {}, {}
     print(f"{len(frames)} first frames; near: within {100 * NEAR_M:.0f} cm of the oracle's next gripper event")
     print("| model | template: median error, near | paraphrases: median error, near |")
     print("| --- | --- | --- |")
     for spec in args.models:
         name, checkpoint = spec.split("=", 1)
-        rows = probe(load_model(checkpoint), frames)
+        rows = rows_of[name] = probe(load_model(checkpoint), frames)
         s = summary(rows)
         report[name] = {"checkpoint": checkpoint, **s, "per_task": {
             task: summary([r for r in rows if r["task"] == task]) for task in sorted({r["task"] for r in rows})}}
         print(f"| {name} | {s['template_median_cm']:.1f} cm, {s['template_near']:.2f} | "
               f"{s['paraphrase_median_cm']:.1f} cm, {s['paraphrase_near']:.2f} ± {s['paraphrase_near_stderr']:.2f} |")
+    names = list(report)
+    print("\nparaphrases near, paired by frame (each frame's paraphrases averaged), per task and in all:")
+    print("| task | " + " | ".join(names) + " |")
+    print("| --- |" + " --- |" * len(names))
+    for task in sorted(report[names[0]]["per_task"]):
+        print(f"| {task} | " + " | ".join(f"{report[n]['per_task'][task]['paraphrase_near']:.2f}" for n in names) + " |")
+    for first, second in zip(names, names[1:]):
+        d = near_per_frame(rows_of[second]) - near_per_frame(rows_of[first])
+        report[f"{second}_minus_{first}_paraphrase_near"] = [float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))]
+        print(f"{second} - {first}: {d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f} over {len(d)} frames")
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
+
+
+def near_per_frame(rows: list[dict]) -> np.ndarray:
+    """Per frame, the share of its paraphrases whose sub-goal is within NEAR_M of the label."""
+    return np.array([np.mean(np.array(r["paraphrase_errors"]) < NEAR_M) for r in rows])
 
 
 if __name__ == "__main__":
