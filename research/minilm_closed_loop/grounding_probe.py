@@ -40,12 +40,12 @@ def first_frames(data: str, per_task: int) -> list[dict]:
         if taken.get(task, 0) >= per_task:
             continue
         taken[task] = taken.get(task, 0) + 1
-        data_ = reader.episode_frames(index)
-        label = next_gripper_event_positions(data_["action"][:, GRIPPER_INDEX], data_["observation.tcp_pose"][:, :3])[0]
+        columns = reader.episode_frames(index)
+        label = next_gripper_event_positions(columns["action"][:, GRIPPER_INDEX], columns["observation.tcp_pose"][:, :3])[0]
         frames.append({"task": task, "params": tuple(row["trivla/params"]), "template": row["tasks"][0],
                        "static": reader.episode_video(index, "observation.images.static")[0],
                        "wrist": reader.episode_video(index, "observation.images.wrist")[0],
-                       "state": data_["observation.state"][0].astype(np.float64), "label": label.astype(np.float64)})
+                       "state": columns["observation.state"][0].astype(np.float64), "label": label.astype(np.float64)})
     return frames
 
 
@@ -73,12 +73,12 @@ def probe(model, frames: list[dict]) -> dict:
 def summary(rows: list[dict]) -> dict:
     template = np.array([r["template_error"] for r in rows])
     paraphrase = np.array([e for r in rows for e in r["paraphrase_errors"]])
+    near = float(np.mean(paraphrase < NEAR_M))
     return {"frames": len(rows), "paraphrases": len(paraphrase),
             "template_median_cm": 100 * float(np.median(template)),
             "paraphrase_median_cm": 100 * float(np.median(paraphrase)),
-            "template_near": float(np.mean(template < NEAR_M)), "paraphrase_near": float(np.mean(paraphrase < NEAR_M)),
-            "paraphrase_near_stderr": float(np.sqrt(np.mean(paraphrase < NEAR_M) * (1 - np.mean(paraphrase < NEAR_M))
-                                                    / len(paraphrase)))}
+            "template_near": float(np.mean(template < NEAR_M)), "paraphrase_near": near,
+            "paraphrase_near_stderr": float(np.sqrt(near * (1 - near) / len(paraphrase)))}
 
 
 def main() -> None:
