@@ -86,6 +86,8 @@ def main() -> None:
     parser.add_argument("--data", required=True)
     parser.add_argument("--models", nargs="+", required=True, metavar="NAME=CHECKPOINT")
     parser.add_argument("--per-task", type=int, default=10)
+    parser.add_argument("--pairs", nargs="*", metavar="X-Y", default=None,
+                        help="paired differences to print, e.g. B-A (default: each model minus the one before it)")
     parser.add_argument("--out", default="research/minilm_closed_loop/grounding_probe.json")
     args = parser.parse_args()
     torch.set_num_threads(2)
@@ -98,8 +100,9 @@ def main() -> None:
         name, checkpoint = spec.split("=", 1)
         rows = rows_of[name] = probe(load_model(checkpoint), frames)
         s = summary(rows)
-        report[name] = {"checkpoint": checkpoint, **s, "per_task": {
-            task: summary([r for r in rows if r["task"] == task]) for task in sorted({r["task"] for r in rows})}}
+        per_task = {task: summary([r for r in rows if r["task"] == task]) for task in sorted({r["task"] for r in rows})}
+        report[name] = {"checkpoint": checkpoint, **s, "paraphrase_near_per_frame": near_per_frame(rows).tolist(),
+                        "per_task": per_task}
         print(f"| {name} | {s['template_median_cm']:.1f} cm, {s['template_near']:.2f} | "
               f"{s['paraphrase_median_cm']:.1f} cm, {s['paraphrase_near']:.2f} ± {s['paraphrase_near_stderr']:.2f} |")
     names = list(report)
@@ -108,7 +111,8 @@ def main() -> None:
     print("| --- |" + " --- |" * len(names))
     for task in sorted(report[names[0]]["per_task"]):
         print(f"| {task} | " + " | ".join(f"{report[n]['per_task'][task]['paraphrase_near']:.2f}" for n in names) + " |")
-    for first, second in zip(names, names[1:]):
+    pairs = [pair.split("-", 1)[::-1] for pair in args.pairs] if args.pairs is not None else zip(names, names[1:])
+    for first, second in pairs:
         d = near_per_frame(rows_of[second]) - near_per_frame(rows_of[first])
         report[f"{second}_minus_{first}_paraphrase_near"] = [float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))]
         print(f"{second} - {first}: {d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f} over {len(d)} frames")
