@@ -130,7 +130,7 @@ def test_chunk_settings_with_a_policy_that_has_no_chunks_are_errors_at_the_cli(c
 
 def test_demo_and_tables_take_the_same_settings_and_name_bad_ones(tmp_path, capsys):
     from trivla_drake.cli import main
-    from trivla_drake.eval.paper_tables import TablesConfig, _stored
+    from trivla_drake.eval.paper_tables import TablesConfig, _stored, stored_evaluation_path
 
     assert main(["demo", "--policy", "oracle", "--set", "inference.execute_steps=5"]) == 2
     assert "inference.* and --latency go with --policy trivla" in capsys.readouterr().err
@@ -164,3 +164,6 @@ def test_demo_and_tables_take_the_same_settings_and_name_bad_ones(tmp_path, caps
                                                          {**settings, "execute_steps": 5, "ensemble_decay": 0.1}]))
     assert _stored(default, str(tmp_path / "ckpt"), settings, lambda: {"value": "recomputed"}) == {"value": "default"}
     assert _stored(ensembled, str(tmp_path / "ckpt"), settings, lambda: {"value": "recomputed"}) == {"value": "k5e"}
+    # Each record lies where stored_evaluation_path names it for its own settings (what research scripts look up).
+    for path in (tmp_path / "stored").glob("*.json"):
+        assert stored_evaluation_path(stored, str(tmp_path / "ckpt"), json.loads(path.read_text())["settings"]) == path

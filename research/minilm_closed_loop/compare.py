@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import argparse
 import glob
-import hashlib
 import json
 import math
 from pathlib import Path
 
-from trivla_drake.nn.checkpoint import checkpoint_digest
+from trivla_drake.eval.paper_tables import stored_evaluation_path
 from trivla_drake.tasks.suite import TASK_NAMES
 
 SEEDS = (1000, 1001, 1002)
@@ -41,13 +40,12 @@ def stored_cells(evaluations: Path, checkpoint: str, paraphrases: bool) -> Cells
     """Successes per (task, base seed) in the stored single-seed evaluations (results/evaluations, written by
     `trivla-drake tables`) of `checkpoint` as it is now: a stored file is its own when its name is the key of this
     checkpoint's contents and its settings (older versions of the same folder are skipped)."""
-    digest = checkpoint_digest(checkpoint)
     cells: Cells = {}
     for path in sorted(glob.glob(str(evaluations / "*.json"))):
         record = json.loads(Path(path).read_text())
         settings, result = record["settings"], record["result"]
-        key = json.dumps({"checkpoint": digest, **settings}, sort_keys=True)
-        if (hashlib.sha256(key.encode()).hexdigest()[:24] != Path(path).stem or settings.get("kind") != "evaluate"
+        if (stored_evaluation_path(evaluations, checkpoint, settings).name != Path(path).name
+                or settings.get("kind") != "evaluate"
                 or bool(settings.get("paraphrases")) != paraphrases or settings.get("seed") not in SEEDS
                 or settings.get("episodes") != 2):
             continue

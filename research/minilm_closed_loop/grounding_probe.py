@@ -49,8 +49,8 @@ def first_frames(data: str, per_task: int) -> list[dict]:
     return frames
 
 
-def probe(model, frames: list[dict]) -> dict:
-    """Per frame: the template's error, each paraphrase's error and its distance from the template's sub-goal."""
+def probe(model, frames: list[dict]) -> list[dict]:
+    """Per frame: the template's error and each paraphrase's error [m]."""
     rows = []
     for frame in frames:
         task = TASKS[frame["task"]]
@@ -65,8 +65,7 @@ def probe(model, frames: list[dict]) -> dict:
         at_paraphrases = [subgoal(text) for text in paraphrases]
         rows.append({"task": frame["task"],
                      "template_error": float(np.linalg.norm(at_template - frame["label"])),
-                     "paraphrase_errors": [float(np.linalg.norm(p - frame["label"])) for p in at_paraphrases],
-                     "paraphrase_shift": [float(np.linalg.norm(p - at_template)) for p in at_paraphrases]})
+                     "paraphrase_errors": [float(np.linalg.norm(p - frame["label"])) for p in at_paraphrases]})
     return rows
 
 

@@ -55,6 +55,13 @@ def _checkpoint_fingerprint(checkpoint: str) -> str:
     return checkpoint_digest(checkpoint)
 
 
+def stored_evaluation_path(results_dir: str | Path, checkpoint: str, settings: dict) -> Path:
+    """Where `tables` keeps the evaluation of `checkpoint`'s present contents with `settings` (as stored in the file):
+    RESULTS_DIR/<24 hex digits of the key's sha256>.json."""
+    key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
+    return Path(results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+
+
 def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> dict:
     """compute() once per (checkpoint contents, settings) when evaluations are stored, else every call."""
     results_dir = config.evaluations_dir()
@@ -71,8 +78,7 @@ def _stored(config: TablesConfig, checkpoint: str, settings: dict, compute) -> d
         settings = {**settings, "ensemble_decay": float(inference.ensemble_decay)}
     if config.threads != 1:  # TriVLA's results depend on torch's thread count (reduction order)
         settings = {**settings, "threads": config.threads}
-    key = json.dumps({"checkpoint": _checkpoint_fingerprint(checkpoint), **settings}, sort_keys=True)
-    path = Path(results_dir) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+    path = stored_evaluation_path(results_dir, checkpoint, settings)
     if path.exists():
         try:
             return json.loads(path.read_text())["result"]
